@@ -1,0 +1,1 @@
+"""zennav services: one thin module per process wiring Zenoh keys to the core."""

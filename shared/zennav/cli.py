@@ -1,0 +1,21 @@
+"""The `zennav` console command.
+
+Units at this edge: degrees for angles, metres, m/s, seconds; inside everything is SI/radians.
+Frames: navigation frame NED, body frame forward-right-down (FRD).
+"""
+from __future__ import annotations
+
+import click
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="zennav")
+def main():
+    """zennav: GNSS/INS navigation that keeps position, velocity and attitude through GNSS outages.
+
+    Frames: navigation frame n is NED (north-east-down), body frame b is forward-right-down.
+    Units on the command line and in reports: degrees, metres, m/s, seconds (SI and radians inside).
+    """
+
+
+# Subcommands register below (one import per command module).

@@ -1,0 +1,1 @@
+"""Loaders and writers of recorded datasets; each returns a zennav.nav.types.Dataset."""

@@ -1,0 +1,1 @@
+"""Navigation core: earth model, rotations, strapdown mechanization, error-state Kalman filter (numpy/scipy only)."""

@@ -1,0 +1,189 @@
+"""Plain data containers shared by the core, the loaders, the simulator and the services.
+
+Conventions (DESIGN.md section 3): n = NED, b = forward-right-down, SI units and radians,
+times are integer nanoseconds of GPS time (``t_ns``) in the dataset's own reference
+(seconds of week for KF-GINS files, seconds since the GPS epoch otherwise).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from enum import IntEnum
+
+import numpy as np
+
+NS = 1_000_000_000
+
+
+class FixType(IntEnum):
+    """GNSS solution quality, ordered from worst to best."""
+
+    NONE = 0
+    SINGLE = 1
+    DGPS = 2
+    RTK_FLOAT = 3
+    RTK_FIXED = 4
+
+
+@dataclass
+class ImuData:
+    """IMU increments over the interval that ends at ``t_ns[k]`` (body frame b, FRD).
+
+    dtheta: (N, 3) angle increments [rad]; dvel: (N, 3) velocity increments of specific force [m/s].
+    """
+
+    t_ns: np.ndarray
+    dtheta: np.ndarray
+    dvel: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def slice(self, sel) -> "ImuData":
+        return ImuData(self.t_ns[sel], self.dtheta[sel], self.dvel[sel])
+
+
+@dataclass
+class GnssData:
+    """GNSS fixes of the antenna phase centre.
+
+    llh: (M, 3) latitude, longitude [rad], ellipsoidal height [m]; std_ned: (M, 3) reported 1-sigma [m];
+    v_n / std_v_n: (M, 3) NED velocity and its 1-sigma [m/s] or None; fix: (M,) FixType;
+    num_sats: (M,) satellites used, -1 when unknown.
+    """
+
+    t_ns: np.ndarray
+    llh: np.ndarray
+    std_ned: np.ndarray
+    v_n: np.ndarray | None = None
+    std_v_n: np.ndarray | None = None
+    fix: np.ndarray | None = None
+    num_sats: np.ndarray | None = None
+
+    def __post_init__(self):
+        m = len(self.t_ns)
+        if self.fix is None:
+            self.fix = np.full(m, int(FixType.SINGLE), dtype=np.int64)
+        if self.num_sats is None:
+            self.num_sats = np.full(m, -1, dtype=np.int64)
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def fix_at(self, k: int) -> "GnssFix":
+        has_v = self.v_n is not None
+        return GnssFix(
+            t_ns=int(self.t_ns[k]),
+            llh=self.llh[k].copy(),
+            std_ned=self.std_ned[k].copy(),
+            v_n=self.v_n[k].copy() if has_v else None,
+            std_v_n=self.std_v_n[k].copy() if has_v else None,
+            fix=int(self.fix[k]),
+            num_sats=int(self.num_sats[k]),
+        )
+
+    def slice(self, sel) -> "GnssData":
+        has_v = self.v_n is not None
+        return GnssData(
+            self.t_ns[sel],
+            self.llh[sel],
+            self.std_ned[sel],
+            self.v_n[sel] if has_v else None,
+            self.std_v_n[sel] if has_v else None,
+            self.fix[sel],
+            self.num_sats[sel],
+        )
+
+
+@dataclass
+class GnssFix:
+    """One GNSS epoch; fields as in GnssData."""
+
+    t_ns: int
+    llh: np.ndarray
+    std_ned: np.ndarray
+    v_n: np.ndarray | None = None
+    std_v_n: np.ndarray | None = None
+    fix: int = int(FixType.SINGLE)
+    num_sats: int = -1
+
+
+@dataclass
+class Truth:
+    """Reference trajectory: llh (K, 3) [rad, rad, m], v_n (K, 3) [m/s] or None, euler (K, 3) roll/pitch/yaw [rad] or None."""
+
+    t_ns: np.ndarray
+    llh: np.ndarray
+    v_n: np.ndarray | None = None
+    euler: np.ndarray | None = None
+    source: str = ""
+
+
+@dataclass
+class ImuNoise:
+    """IMU error model, SI: angle random walk [rad/sqrt(s)], velocity random walk [m/s/sqrt(s)],
+    bias instability as first-order Gauss-Markov 1-sigma [rad/s, m/s^2] with correlation times [s]."""
+
+    arw: float = np.deg2rad(0.2) / 60.0
+    vrw: float = 0.1 / 60.0
+    gyro_bias_std: float = np.deg2rad(10.0) / 3600.0
+    accel_bias_std: float = 1e-3 * 9.80665
+    gyro_bias_tau: float = 3600.0
+    accel_bias_tau: float = 3600.0
+
+
+@dataclass
+class InitialState:
+    """Initial navigation state and its 1-sigma uncertainty (SI; attitude as roll, pitch, yaw [rad])."""
+
+    t_ns: int
+    llh: np.ndarray
+    v_n: np.ndarray
+    euler: np.ndarray
+    std_pos_ned: np.ndarray = field(default_factory=lambda: np.array([1.0, 1.0, 2.0]))
+    std_v_n: np.ndarray = field(default_factory=lambda: np.array([0.1, 0.1, 0.1]))
+    std_euler: np.ndarray = field(default_factory=lambda: np.deg2rad([1.0, 1.0, 5.0]))
+    gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    accel_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    std_gyro_bias: np.ndarray | None = None  # None: the ImuNoise bias std
+    std_accel_bias: np.ndarray | None = None
+
+
+@dataclass
+class NavConfig:
+    """Everything the navigation engine needs besides the data, SI units.
+
+    lever_arm_b: GNSS antenna relative to the IMU, body frame FRD [m].
+    gate_probability: chi-square gate of GNSS innovations (per update, on its degrees of freedom); <= 0 disables gating.
+    outage_timeout_s: an outage is declared when no valid fix has been fused for this long.
+    cov_interval_s: longest interval over which the error covariance is propagated in one step.
+    min_fix / min_sats / max_std_m: GNSS quality gates (num_sats -1 means unknown and passes).
+    max_jump_m: a fix further than this from the prediction, beyond its gate, counts as a jump.
+    """
+
+    imu_noise: ImuNoise = field(default_factory=ImuNoise)
+    lever_arm_b: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gate_probability: float = 0.9999
+    outage_timeout_s: float = 2.0
+    cov_interval_s: float = 0.05
+    min_fix: int = int(FixType.SINGLE)
+    min_sats: int = 4
+    max_std_m: float = 30.0
+    use_gnss_velocity: bool = True
+    start_t_ns: int | None = None
+    end_t_ns: int | None = None
+
+    def with_(self, **kw) -> "NavConfig":
+        return replace(self, **kw)
+
+
+@dataclass
+class Dataset:
+    """A recording ready for the core: IMU, GNSS, optional truth, and the configuration to run it."""
+
+    name: str
+    imu: ImuData
+    gnss: GnssData
+    config: NavConfig
+    initial: InitialState
+    truth: Truth | None = None
+    notes: dict = field(default_factory=dict)
