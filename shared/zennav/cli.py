@@ -19,3 +19,7 @@ def main():
 
 
 # Subcommands register below (one import per command module).
+from .replay_cli import demo, replay  # noqa: E402
+
+main.add_command(replay)
+main.add_command(demo)

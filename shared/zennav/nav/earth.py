@@ -74,11 +74,9 @@ def ecef_to_llh(r_e) -> np.ndarray:
     for _ in range(3):
         theta = np.arctan2(z * A, p * B)
         lat = np.arctan2(z + ep2 * B * np.sin(theta) ** 3, p - E2 * A * np.cos(theta) ** 3)
-        r_n = A / np.sqrt(1.0 - E2 * np.sin(lat) ** 2)
-    h = p / np.cos(lat) - r_n
-    # Near the poles use the z-based height, which stays well conditioned.
-    polar = np.abs(np.cos(lat)) < 1e-6
-    h = np.where(polar, np.abs(z) / np.abs(np.sin(lat)) - r_n * (1.0 - E2), h)
+    sl = np.sin(lat)
+    r_n = A / np.sqrt(1.0 - E2 * sl**2)
+    h = p * np.cos(lat) + (z + E2 * r_n * sl) * sl - r_n  # well conditioned at every latitude
     return np.stack([lat, lon, h], axis=-1)
 
 

@@ -41,6 +41,23 @@ class ImuData:
     def slice(self, sel) -> "ImuData":
         return ImuData(self.t_ns[sel], self.dtheta[sel], self.dvel[sel])
 
+    @classmethod
+    def from_rates(cls, t_ns, omega_ib_b, f_ib_b) -> "ImuData":
+        """Increments from rates sampled at t_ns: angular rate [rad/s] and specific force [m/s^2], frame b.
+
+        Trapezoid rule over each interval: dtheta_k = (w_{k-1} + w_k) / 2 * (t_k - t_{k-1}), the same for dvel.
+        The first sample has no predecessor: its own rate times the first interval's length.
+        """
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        dt = np.diff(t_ns) / NS
+        dt = np.concatenate([dt[:1], dt])[:, None]
+
+        def increments(rate):
+            rate = np.asarray(rate, dtype=float)
+            return np.concatenate([rate[:1], 0.5 * (rate[1:] + rate[:-1])]) * dt
+
+        return cls(t_ns, increments(omega_ib_b), increments(f_ib_b))
+
 
 @dataclass
 class GnssData:
@@ -116,6 +133,7 @@ class Truth:
     v_n: np.ndarray | None = None
     euler: np.ndarray | None = None
     source: str = ""
+    at_antenna: bool = False  # True when llh/v_n are of the GNSS antenna (RTK as truth), not of the IMU
 
 
 @dataclass
@@ -168,6 +186,7 @@ class NavConfig:
     min_fix: int = int(FixType.SINGLE)
     min_sats: int = 4
     max_std_m: float = 30.0
+    max_jump_m: float = 50.0
     use_gnss_velocity: bool = True
     start_t_ns: int | None = None
     end_t_ns: int | None = None

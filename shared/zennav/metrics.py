@@ -1,0 +1,183 @@
+"""Accuracy of a replay against the dataset's truth, and the reports written by `zennav replay --out`.
+
+Errors are computed only at truth epochs inside the solution's time span. Position errors are NED
+metres of the same physical point as the truth (the IMU, or the GNSS antenna when the truth is the
+RTK antenna position, in which case the solution is moved by the lever arm with its own attitude).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .nav import earth
+from .nav.rotation import wrap_angle
+from .nav.types import NS, Dataset
+from .replay import ReplayResult
+
+
+def quat_to_dcm_batch(q: np.ndarray) -> np.ndarray:
+    """(N, 4) q_nb -> (N, 3, 3) C_nb."""
+    q0, q1, q2, q3 = q.T
+    return np.stack(
+        [
+            np.stack([q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)], -1),
+            np.stack([2 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2 * (q2 * q3 - q0 * q1)], -1),
+            np.stack([2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3], -1),
+        ],
+        axis=1,
+    )
+
+
+def euler_batch(q: np.ndarray) -> np.ndarray:
+    """(N, 4) q_nb -> (N, 3) roll, pitch, yaw [rad] (ZYX)."""
+    C = quat_to_dcm_batch(q)
+    return np.stack(
+        [
+            np.arctan2(C[:, 2, 1], C[:, 2, 2]),
+            np.arctan2(-C[:, 2, 0], np.hypot(C[:, 2, 1], C[:, 2, 2])),
+            np.arctan2(C[:, 1, 0], C[:, 0, 0]),
+        ],
+        axis=-1,
+    )
+
+
+def antenna_llh(llh: np.ndarray, q_nb: np.ndarray, lever_arm_b) -> np.ndarray:
+    """Move IMU positions (N, 3) to the antenna at lever_arm_b [m, FRD] using the attitude q_nb (N, 4)."""
+    lever_n = quat_to_dcm_batch(q_nb) @ np.asarray(lever_arm_b, dtype=float)
+    r_m, r_n = np.vectorize(earth.radii)(llh[:, 0])
+    out = llh.copy()
+    out[:, 0] += lever_n[:, 0] / (r_m + llh[:, 2])
+    out[:, 1] += lever_n[:, 1] / ((r_n + llh[:, 2]) * np.cos(llh[:, 0]))
+    out[:, 2] -= lever_n[:, 2]
+    return out
+
+
+def ned_errors(llh_est: np.ndarray, llh_ref: np.ndarray) -> np.ndarray:
+    """NED error [m] of estimated minus reference positions (N, 3), small-offset approximation."""
+    r_m, r_n = np.vectorize(earth.radii)(llh_ref[:, 0])
+    d = llh_est - llh_ref
+    return np.stack(
+        [d[:, 0] * (r_m + llh_ref[:, 2]), d[:, 1] * (r_n + llh_ref[:, 2]) * np.cos(llh_ref[:, 0]), -d[:, 2]], -1
+    )
+
+
+def _interp(t_query: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    tq = (t_query - t[0]).astype(np.float64)
+    tt = (t - t[0]).astype(np.float64)
+    return np.stack([np.interp(tq, tt, y[:, i]) for i in range(y.shape[1])], -1)
+
+
+def _rms(x) -> float | None:
+    x = np.asarray(x, dtype=float)
+    return float(math.sqrt(np.mean(x * x))) if x.size else None
+
+
+def evaluate(ds: Dataset, res: ReplayResult) -> dict:
+    """metrics.json content: whole-run RMS errors and per-outage horizontal drift (see module docstring)."""
+    duration = (res.t_ns[-1] - res.t_ns[0]) / NS if len(res.t_ns) > 1 else 0.0
+    m: dict = {
+        "dataset": ds.name,
+        "duration_s": duration,
+        "imu_rate_hz": (len(res.t_ns) - 1) / duration if duration > 0 else None,
+        "wall_s": res.wall_s,
+        "realtime_factor": duration / res.wall_s if res.wall_s > 0 else None,
+        "epochs_per_s": len(res.t_ns) / res.wall_s if res.wall_s > 0 else None,
+        "truth_source": ds.truth.source if ds.truth is not None else None,
+        "horizontal_rms_m": None,
+        "vertical_rms_m": None,
+        "velocity_rms_mps": None,
+        "attitude_rms_deg": None,
+        "outages": [],
+        "outage_max_horizontal_rms_m": None,
+        "outage_max_horizontal_max_m": None,
+        "engine": res.status,
+    }
+    truth = ds.truth
+    if truth is None or len(res.t_ns) < 2:
+        return m
+    sel = (truth.t_ns >= res.t_ns[0]) & (truth.t_ns <= res.t_ns[-1])
+    t_ref = truth.t_ns[sel]
+    llh_sol = res.llh
+    if truth.at_antenna:
+        llh_sol = antenna_llh(res.llh, res.q_nb, ds.config.lever_arm_b)
+    est = _interp(t_ref, res.t_ns, llh_sol)
+    err = ned_errors(est, truth.llh[sel])
+    horiz = np.hypot(err[:, 0], err[:, 1])
+    m["horizontal_rms_m"] = _rms(horiz)
+    m["vertical_rms_m"] = _rms(err[:, 2])
+    if truth.v_n is not None:
+        v_est = _interp(t_ref, res.t_ns, res.v_n)
+        m["velocity_rms_mps"] = _rms(np.linalg.norm(v_est - truth.v_n[sel], axis=1))
+    if truth.euler is not None:
+        e_est = euler_batch(res.q_nb)
+        idx = np.clip(np.searchsorted(res.t_ns, t_ref), 0, len(res.t_ns) - 1)
+        d = wrap_angle(e_est[idx] - truth.euler[sel])
+        m["attitude_rms_deg"] = {k: math.degrees(_rms(d[:, i])) for i, k in enumerate(("roll", "pitch", "yaw"))}
+    for a, b in res.windows:
+        inside = (t_ref >= a) & (t_ref < b)
+        if not inside.any():
+            continue
+        h = horiz[inside]
+        m["outages"].append(
+            {
+                "start_s": (a - res.t_ns[0]) / NS,
+                "duration_s": (b - a) / NS,
+                "max_horizontal_m": float(h.max()),
+                "final_horizontal_m": float(h[-1]),
+            }
+        )
+    if m["outages"]:
+        peaks = [o["max_horizontal_m"] for o in m["outages"]]
+        m["outage_max_horizontal_rms_m"] = _rms(peaks)
+        m["outage_max_horizontal_max_m"] = float(max(peaks))
+    return m
+
+
+def format_table(m: dict) -> str:
+    """Human-readable accuracy table of a metrics dict."""
+
+    def f(x, unit=""):
+        return "n/a" if x is None else f"{x:.3f}{unit}"
+
+    rows = [
+        ("dataset", m["dataset"]),
+        ("duration", f(m["duration_s"], " s")),
+        ("IMU rate", f(m["imu_rate_hz"], " Hz")),
+        ("real-time factor", f(m["realtime_factor"], "x")),
+        ("truth", m.get("truth_source") or "none"),
+        ("horizontal RMS", f(m["horizontal_rms_m"], " m")),
+        ("vertical RMS", f(m["vertical_rms_m"], " m")),
+        ("velocity RMS", f(m["velocity_rms_mps"], " m/s")),
+    ]
+    att = m["attitude_rms_deg"]
+    rows.append(("attitude RMS r/p/y", "n/a" if att is None else "/".join(f"{att[k]:.3f}" for k in att) + " deg"))
+    for o in m["outages"]:
+        rows.append(
+            (f"outage {o['start_s']:.0f}s+{o['duration_s']:.0f}s",
+             f"max {o['max_horizontal_m']:.2f} m, final {o['final_horizontal_m']:.2f} m")
+        )
+    if m["outages"]:
+        rows.append(("outage max drift RMS", f(m["outage_max_horizontal_rms_m"], " m")))
+        rows.append(("outage max drift max", f(m["outage_max_horizontal_max_m"], " m")))
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def write_outputs(out_dir: Path, ds: Dataset, res: ReplayResult, metrics: dict) -> None:
+    """nav.txt (KF-GINS .nav format), nav.csv and metrics.json in out_dir."""
+    from .datasets import kfgins
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    euler = euler_batch(res.q_nb)
+    kfgins.write_nav(out_dir / "nav.txt", ds.notes.get("gps_week"), res.t_ns, res.llh, res.v_n, euler)
+    header = "t_s,lat_deg,lon_deg,h_m,vn_mps,ve_mps,vd_mps,roll_deg,pitch_deg,yaw_deg,std_n_m,std_e_m,std_d_m,outage"
+    cols = np.column_stack(
+        [res.t_ns / NS, np.degrees(res.llh[:, :2]), res.llh[:, 2], res.v_n, np.degrees(euler), res.std_pos_ned,
+         res.outage.astype(float)]
+    )
+    np.savetxt(out_dir / "nav.csv", cols, delimiter=",", header=header, comments="",
+               fmt=["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%d"])
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))

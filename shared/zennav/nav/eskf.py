@@ -1,0 +1,134 @@
+"""15-state error-state Kalman filter of the strapdown INS (error model in NED, psi-angle form).
+
+Error state x = [dr_n (3, NED metres), dv_n (3, m/s), phi (3, rad), dbg (3, rad/s), dba (3, m/s^2)]
+with the definitions (estimate minus truth):
+    dr_n = position error in NED metres, dv_n = v_hat - v,
+    C_nb_hat = (I - [phi x]) C_nb, dbg = bg_hat - bg, dba = ba_hat - ba,
+    bias errors first-order Gauss-Markov.
+Continuous model (Shin 2005, eqs. 3.48-3.55; Groves 2013 section 14.2.4 in local-navigation form):
+    dr'   = F_rr dr + dv
+    dv'   = F_vr dr + F_vv dv + [f_n x] phi - C_nb dba + C_nb w_a
+    phi'  = F_pr dr + F_pv dv - [omega_in_n x] phi + C_nb dbg - C_nb w_g
+    dbg'  = -dbg / tau_g + w_bg,  dba' = -dba / tau_a + w_ba
+Discretisation: Phi = I + F dt + (F dt)^2 / 2, Qd = (Phi Q Phi' + Q) dt / 2 (trapezoid).
+Measurement update in Joseph form with chi-square innovation gating.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import earth
+from .rotation import skew
+from .types import ImuNoise
+
+N_STATES = 15
+POS, VEL, ATT, BG, BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+
+
+def error_model(lat: float, h: float, v_n, C_nb: np.ndarray, f_b, noise: ImuNoise) -> np.ndarray:
+    """Continuous-time error dynamics matrix F (15x15) at latitude lat [rad], height h [m],
+    velocity v_n [m/s], attitude C_nb and specific force f_b [m/s^2, body]."""
+    vn, ve, vd = v_n
+    r_m, r_n = earth.radii(lat)
+    rmh, rnh = r_m + h, r_n + h
+    s, c = math.sin(lat), math.cos(lat)
+    t = s / c
+    w = earth.OMEGA_IE
+    g = earth.gravity(lat, h)
+    F = np.zeros((N_STATES, N_STATES))
+    F[0:3, 0:3] = [[-vd / rmh, 0.0, vn / rmh], [ve * t / rnh, -(vd + vn * t) / rnh, ve / rnh], [0.0, 0.0, 0.0]]
+    F[0:3, 3:6] = np.eye(3)
+    F[3:6, 0:3] = [
+        [-2 * ve * w * c / rmh - ve * ve / (rmh * rnh * c * c), 0.0, vn * vd / rmh**2 - ve * ve * t / rnh**2],
+        [2 * w * (vn * c - vd * s) / rmh + vn * ve / (rmh * rnh * c * c), 0.0, (ve * vd + vn * ve * t) / rnh**2],
+        [2 * w * ve * s / rmh, 0.0, -ve * ve / rnh**2 - vn * vn / rmh**2 + 2 * g / (math.sqrt(r_m * r_n) + h)],
+    ]
+    F[3:6, 3:6] = [
+        [vd / rmh, -2 * (w * s + ve * t / rnh), vn / rmh],
+        [2 * w * s + ve * t / rnh, (vd + vn * t) / rnh, 2 * w * c + ve / rnh],
+        [-2 * vn / rmh, -2 * (w * c + ve / rnh), 0.0],
+    ]
+    F[3:6, 6:9] = skew(C_nb @ np.asarray(f_b))
+    F[3:6, 12:15] = -C_nb
+    F[6:9, 0:3] = [
+        [-w * s / rmh, 0.0, ve / rnh**2],
+        [0.0, 0.0, -vn / rmh**2],
+        [-w * c / rmh - ve / (rmh * rnh * c * c), 0.0, -ve * t / rnh**2],
+    ]
+    F[6:9, 3:6] = [[0.0, 1 / rnh, 0.0], [-1 / rmh, 0.0, 0.0], [0.0, -t / rnh, 0.0]]
+    omega_in_n = earth.omega_ie_n(lat) + earth.omega_en_n(lat, h, v_n)
+    F[6:9, 6:9] = -skew(omega_in_n)
+    F[6:9, 9:12] = C_nb
+    F[9:12, 9:12] = -np.eye(3) / noise.gyro_bias_tau
+    F[12:15, 12:15] = -np.eye(3) / noise.accel_bias_tau
+    return F
+
+
+def process_noise_psd(noise: ImuNoise) -> np.ndarray:
+    """Diagonal of the continuous process-noise PSD Q in error-state coordinates.
+
+    White noise of an isotropic IMU stays isotropic when rotated by C_nb, so Q is diagonal in n."""
+    return np.concatenate(
+        [
+            np.zeros(3),
+            np.full(3, noise.vrw**2),
+            np.full(3, noise.arw**2),
+            np.full(3, 2.0 * noise.gyro_bias_std**2 / noise.gyro_bias_tau),
+            np.full(3, 2.0 * noise.accel_bias_std**2 / noise.accel_bias_tau),
+        ]
+    )
+
+
+def discretize(F: np.ndarray, q_psd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Transition Phi and process noise Qd over dt [s] (second-order Phi, trapezoidal Qd)."""
+    Fdt = F * dt
+    Phi = np.eye(N_STATES) + Fdt + 0.5 * (Fdt @ Fdt)
+    PhiQ = Phi * q_psd  # Phi @ diag(q)
+    Qd = 0.5 * dt * (PhiQ @ Phi.T + np.diag(q_psd))
+    return Phi, Qd
+
+
+@dataclass
+class UpdateResult:
+    """Outcome of one measurement update: innovation and its covariance S, d2 = nu' S^-1 nu,
+    test_ratio = d2 / gate threshold (> 1 means rejected by the gate), and the state correction dx."""
+
+    innovation: np.ndarray
+    S: np.ndarray
+    d2: float
+    test_ratio: float
+    fused: bool
+    dx: np.ndarray = field(default_factory=lambda: np.zeros(N_STATES))
+
+
+class ErrorStateKF:
+    """Covariance bookkeeping of the closed-loop error-state filter (the error estimate is fed back
+    to the navigation state after every update, so the a-priori error estimate is always zero)."""
+
+    def __init__(self, P0: np.ndarray):
+        self.P = np.array(P0, dtype=float)
+
+    def propagate(self, Phi: np.ndarray, Qd: np.ndarray) -> None:
+        P = Phi @ self.P @ Phi.T + Qd
+        self.P = 0.5 * (P + P.T)
+
+    def update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, gate: float | None) -> UpdateResult:
+        """Joseph-form update with measurement z = H x + v, v ~ N(0, R).
+
+        gate: chi-square threshold on d2 (None: always fuse). Rejected updates leave P unchanged."""
+        PHt = self.P @ H.T
+        S = H @ PHt + R
+        S = 0.5 * (S + S.T)
+        S_inv_z = np.linalg.solve(S, z)
+        d2 = float(z @ S_inv_z)
+        ratio = d2 / gate if gate else 0.0
+        if gate is not None and not d2 <= gate:
+            return UpdateResult(z, S, d2, ratio, False)
+        K = np.linalg.solve(S, PHt.T).T
+        I_KH = np.eye(N_STATES) - K @ H
+        P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
+        self.P = 0.5 * (P + P.T)
+        return UpdateResult(z, S, d2, ratio, True, K @ z)
