@@ -1,0 +1,430 @@
+"""KF-GINS (i2Nav-WHU/KF-GINS) text files and YAML configuration, so a KF-GINS user's files run unchanged.
+
+Text files, split on spaces, tabs or commas as KF-GINS does (``#`` starts a comment, a zennav extension):
+- IMU: ``imudatalen`` columns (at least 7): GPS seconds of week [s], dtheta x y z [rad], dvel x y z [m/s],
+  body frame FRD, increments over the interval that ends at the time; columns after the 7th are ignored.
+- GNSS: 7 columns: sow, lat [deg], lon [deg], h [m], std north east down [m]; or 13 columns in the order
+  KF-GINS's GnssFileLoader reads them: sow, lat, lon, h, vn ve vd [m/s], std n e d [m], std vn ve vd [m/s].
+- GNSS velocity (zennav extension, YAML key ``gnssvelpath``): 7 columns: sow, vn ve vd [m/s], std vn ve vd [m/s],
+  one row per GNSS epoch with the same times.
+- .nav (truth, and KF-GINS's result): 11 columns: GPS week, sow, lat [deg], lon [deg], h [m], vn ve vd [m/s],
+  roll pitch yaw [deg].
+
+Times become ``t_ns = round(sow * 1e9)`` (seconds of week). The writers take a GPS week so that datasets timed in
+seconds since the GPS epoch are written as seconds of week; they write exact nanoseconds and 17 significant digits
+for the increments, so a run from converted files matches a run from the native loader.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from zennav.datasets.errors import DataError, read_table, read_text
+from zennav.nav.rotation import wrap_angle
+from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
+
+WEEK_NS = 604800 * NS
+D2R = math.pi / 180.0
+MGAL = 1e-5  # [m/s^2]
+DEG_PER_H = D2R / 3600.0  # [rad/s]
+SQRT_H = 60.0  # sqrt(3600 s)
+TRUTH_FIELDS = ("pos", "vel", "att")
+
+
+def _t_ns(seconds) -> np.ndarray:
+    """Seconds [s] -> integer nanoseconds (int64)."""
+    return np.round(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64)
+
+
+def _llh(lat_deg, lon_deg, h, table) -> np.ndarray:
+    """(lat, lon [rad], h [m]) from degrees, with a DataError at the first row out of range."""
+    bad = np.flatnonzero((np.abs(lat_deg) > 90.0) | (np.abs(lon_deg) > 360.0))
+    if bad.size:
+        k = int(bad[0])
+        raise table.error(k, f"latitude {lat_deg[k]} / longitude {lon_deg[k]} deg out of range")
+    return np.column_stack([np.deg2rad(lat_deg), np.deg2rad(lon_deg), h])
+
+
+def _require_positive(table, values: np.ndarray, what: str) -> None:
+    bad = np.flatnonzero((values <= 0.0).any(axis=1))
+    if bad.size:
+        raise table.error(int(bad[0]), f"{what} must be positive")
+
+
+def _timed_table(path, columns, time_col: int = 0):
+    """A finite table whose column ``time_col`` (sow [s]) strictly increases; returns (table, t_ns)."""
+    table = read_table(path, columns, commas_as_space=True)
+    table.require_finite()
+    t_ns = _t_ns(table.data[:, time_col])
+    table.require_increasing(t_ns)
+    return table, t_ns
+
+
+def load_imu(path, columns: int = 7) -> ImuData:
+    """KF-GINS IMU file (``columns`` = imudatalen) -> ImuData (t_ns in seconds of week, FRD increments)."""
+    table, t_ns = _timed_table(path, columns)
+    d = table.data
+    return ImuData(t_ns, d[:, 1:4].copy(), d[:, 4:7].copy())
+
+
+def load_gnss(path, vel_path=None, fix: FixType = FixType.SINGLE) -> GnssData:
+    """KF-GINS GNSS file (7 or 13 columns), optionally merged with a zennav velocity file -> GnssData.
+
+    Every epoch gets ``fix`` (the format does not carry it) and num_sats -1 (unknown).
+    """
+    table, t_ns = _timed_table(path, (7, 13))
+    d = table.data
+    llh = _llh(d[:, 1], d[:, 2], d[:, 3], table)
+    v_n = std_v_n = None
+    if d.shape[1] == 7:
+        std_ned = d[:, 4:7].copy()
+    else:
+        v_n, std_ned, std_v_n = d[:, 4:7].copy(), d[:, 7:10].copy(), d[:, 10:13].copy()
+        _require_positive(table, std_v_n, "velocity std")
+    _require_positive(table, std_ned, "position std")
+    if vel_path is not None:
+        if v_n is not None:
+            raise DataError(vel_path, f"velocity given twice: {Path(path).name} already has 13 columns")
+        v_n, std_v_n = _load_velocity(vel_path, t_ns)
+    m = len(t_ns)
+    return GnssData(t_ns, llh, std_ned, v_n, std_v_n, np.full(m, int(fix), dtype=np.int64), np.full(m, -1, dtype=np.int64))
+
+
+def _load_velocity(path, gnss_t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """zennav GNSS velocity file -> (v_n, std_v_n) [m/s]; its times must equal the GNSS file's, row by row."""
+    table, t_ns = _timed_table(path, 7)
+    n = min(len(t_ns), len(gnss_t_ns))
+    bad = np.flatnonzero(t_ns[:n] != gnss_t_ns[:n])
+    if bad.size:
+        k = int(bad[0])
+        raise table.error(k, f"time {t_ns[k] / 1e9:.9f} s does not match the GNSS epoch {gnss_t_ns[k] / 1e9:.9f} s")
+    if len(t_ns) != len(gnss_t_ns):
+        raise DataError(path, f"{len(t_ns)} velocity rows for {len(gnss_t_ns)} GNSS epochs")
+    _require_positive(table, table.data[:, 4:7], "velocity std")
+    return table.data[:, 1:4].copy(), table.data[:, 4:7].copy()
+
+
+def load_nav(path, source: str = "", fields=TRUTH_FIELDS, at_antenna: bool = False) -> Truth:
+    """KF-GINS .nav file (11 columns) -> Truth (t_ns in seconds of week; yaw wrapped to (-pi, pi]).
+
+    fields: which of "pos", "vel", "att" hold data; the others are left None (a zennav extension).
+    """
+    table, t_ns = _timed_table(path, 11, time_col=1)
+    d = table.data
+    euler = np.deg2rad(d[:, 8:11])
+    euler[:, 2] = wrap_angle(euler[:, 2])
+    return Truth(
+        t_ns=t_ns,
+        llh=_llh(d[:, 2], d[:, 3], d[:, 4], table),
+        v_n=d[:, 5:8].copy() if "vel" in fields else None,
+        euler=euler if "att" in fields else None,
+        source=source or f"KF-GINS .nav file {Path(path).name}",
+        at_antenna=at_antenna,
+    )
+
+
+# ----------------------------------------------------------------------------------------------- writers
+
+
+def _sow_text(t_ns, week: int) -> list[str]:
+    """Exact decimal seconds of week ('%d.%09d') of t_ns [ns]; ValueError if a time is before the week."""
+    sow_ns = np.asarray(t_ns, dtype=np.int64) - np.int64(week) * WEEK_NS
+    if sow_ns.size and sow_ns.min() < 0:
+        raise ValueError(f"times before GPS week {week}")
+    sec, frac = np.divmod(sow_ns, NS)
+    return [f"{s}.{f:09d}" for s, f in zip(sec.tolist(), frac.tolist())]
+
+
+def _write_rows(path, t_ns, week: int, columns: np.ndarray, fmt: str, lead: list[str] | None = None) -> None:
+    """One line per row: [lead] sow values, values formatted with ``fmt`` (one %-spec per column)."""
+    sow = _sow_text(t_ns, week)
+    lead = lead or [""] * len(sow)
+    body = [fmt % tuple(row) for row in np.asarray(columns, dtype=float).tolist()]
+    Path(path).write_text("".join(f"{a}{s} {b}\n" for a, s, b in zip(lead, sow, body)), encoding="utf-8")
+
+
+def write_imu(path, imu: ImuData, week: int = 0) -> None:
+    """KF-GINS IMU file (7 columns): sow [s], dtheta [rad], dvel [m/s], 17 significant digits."""
+    _write_rows(path, imu.t_ns, week, np.hstack([imu.dtheta, imu.dvel]), " ".join(["%.16e"] * 6))
+
+
+def write_gnss(path, gnss: GnssData, week: int = 0, vel_path=None) -> None:
+    """KF-GINS GNSS file (7 columns) and, if vel_path is given, the zennav velocity file (needs gnss.v_n)."""
+    deg = np.column_stack([np.rad2deg(gnss.llh[:, :2]), gnss.llh[:, 2], gnss.std_ned])
+    _write_rows(path, gnss.t_ns, week, deg, "%.13f %.13f %.9f %.9f %.9f %.9f")
+    if vel_path is not None:
+        if gnss.v_n is None:
+            raise ValueError("write_gnss: vel_path given but the GNSS data has no velocity")
+        _write_rows(vel_path, gnss.t_ns, week, np.hstack([gnss.v_n, gnss.std_v_n]), " ".join(["%.9f"] * 6))
+
+
+def write_nav(path, week: int, t_ns, llh, v_n, euler) -> None:
+    """KF-GINS .nav file: week, sow, lat lon [deg], h [m], v_n [m/s], roll pitch yaw [deg] (llh/euler in rad)."""
+    llh = np.asarray(llh, dtype=float)
+    cols = np.column_stack([np.rad2deg(llh[:, :2]), llh[:, 2], v_n, np.rad2deg(euler)])
+    fmt = "%.13f %.13f %.9f %.9f %.9f %.9f %.12f %.12f %.12f"
+    _write_rows(path, t_ns, week, cols, fmt, lead=[f"{week} "] * len(llh))
+
+
+def write_dataset(dataset: Dataset, folder, name: str | None = None) -> Path:
+    """Write a Dataset as KF-GINS files plus a YAML configuration in ``folder``; returns the YAML path.
+
+    Times are written as seconds of the GPS week of the first IMU sample. The KF-GINS format keeps no fix type,
+    satellite count or zennav-only NavConfig fields (gates, timeouts): load_config gives their defaults.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    name = name or dataset.name
+    imu, gnss, init, cfg, noise = dataset.imu, dataset.gnss, dataset.initial, dataset.config, dataset.config.imu_noise
+    week = int(imu.t_ns[0] // WEEK_NS)
+    files = {"imupath": f"{name}_imu.txt", "gnsspath": f"{name}_gnss.txt"}
+    if gnss.v_n is not None:
+        files["gnssvelpath"] = f"{name}_gnssvel.txt"
+    write_imu(folder / files["imupath"], imu, week)
+    write_gnss(folder / files["gnsspath"], gnss, week, folder / files["gnssvelpath"] if "gnssvelpath" in files else None)
+
+    def sow(t_ns: int) -> float:
+        return (t_ns - week * WEEK_NS) / NS
+
+    def vec(values, scale=1.0) -> list[float]:
+        return [float(x) * scale for x in values]
+
+    dt_s = np.median(np.diff(imu.t_ns)) / NS
+    config = {
+        **files,
+        "outputpath": ".",
+        "imudatalen": 7,
+        "imudatarate": int(round(1.0 / dt_s)),
+        "starttime": sow(init.t_ns),
+        "endtime": -1 if cfg.end_t_ns is None else sow(cfg.end_t_ns),
+        "initpos": [math.degrees(init.llh[0]), math.degrees(init.llh[1]), float(init.llh[2])],
+        "initvel": vec(init.v_n),
+        "initatt": vec(np.rad2deg(init.euler)),
+        "initgyrbias": vec(init.gyro_bias, 1.0 / DEG_PER_H),
+        "initaccbias": vec(init.accel_bias, 1.0 / MGAL),
+        "initgyrscale": [0.0] * 3,
+        "initaccscale": [0.0] * 3,
+        "initposstd": vec(init.std_pos_ned),
+        "initvelstd": vec(init.std_v_n),
+        "initattstd": vec(np.rad2deg(init.std_euler)),
+        "imunoise": {
+            "arw": [noise.arw * SQRT_H / D2R] * 3,
+            "vrw": [noise.vrw * SQRT_H] * 3,
+            "gbstd": [noise.gyro_bias_std / DEG_PER_H] * 3,
+            "abstd": [noise.accel_bias_std / MGAL] * 3,
+            "gsstd": [0.0] * 3,
+            "asstd": [0.0] * 3,
+            "corrtime": noise.gyro_bias_tau / 3600.0,
+        },
+        "antlever": vec(cfg.lever_arm_b),
+    }
+    if noise.accel_bias_tau != noise.gyro_bias_tau:
+        config["imunoise"]["acccorrtime"] = noise.accel_bias_tau / 3600.0
+    if init.std_gyro_bias is not None:
+        config["initbgstd"] = vec(init.std_gyro_bias, 1.0 / DEG_PER_H)
+    if init.std_accel_bias is not None:
+        config["initbastd"] = vec(init.std_accel_bias, 1.0 / MGAL)
+    truth = dataset.truth
+    if truth is not None:
+        config["truthpath"] = f"{name}_truth.nav"
+        zeros = np.zeros((len(truth.t_ns), 3))
+        write_nav(
+            folder / config["truthpath"],
+            week,
+            truth.t_ns,
+            truth.llh,
+            truth.v_n if truth.v_n is not None else zeros,
+            truth.euler if truth.euler is not None else zeros,
+        )
+        fields = ["pos"] + (["vel"] if truth.v_n is not None else []) + (["att"] if truth.euler is not None else [])
+        config["truthinfo"] = {"fields": fields, "source": truth.source, "at_antenna": bool(truth.at_antenna)}
+    yaml_path = folder / f"{name}.yaml"
+    header = f"# KF-GINS configuration written by zennav from '{dataset.name}'; times: seconds of GPS week {week}\n"
+    body = yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=1000)
+    yaml_path.write_text(header + body, encoding="utf-8")
+    return yaml_path
+
+
+# ----------------------------------------------------------------------------------------------- YAML
+
+
+class _Config:
+    """A parsed YAML file with line numbers for error messages."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        text = read_text(path)
+        try:
+            self.data = yaml.safe_load(text)
+            self.root = yaml.compose(text)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            raise DataError(path, f"invalid YAML: {problem}", mark.line + 1 if mark else None) from None
+        if not isinstance(self.data, dict):
+            raise DataError(path, "expected a mapping of KF-GINS keys (imupath, gnsspath, ...)")
+        self.notes: list[str] = []
+
+    def line(self, *keys) -> int | None:
+        """1-based line of the value at keys (of the deepest existing parent if absent)."""
+        node, line = self.root, None
+        for key in keys:
+            if not isinstance(node, yaml.MappingNode):
+                break
+            match = [(k, v) for k, v in node.value if k.value == key]
+            if not match:
+                break
+            node, line = match[0][1], match[0][0].start_mark.line + 1
+        return line
+
+    def error(self, keys, message: str) -> DataError:
+        return DataError(self.path, f"{'.'.join(keys)}: {message}", self.line(*keys))
+
+    def get(self, *keys, required: bool = True):
+        value = self.data
+        for key in keys:
+            if not isinstance(value, dict) or key not in value:
+                if required:
+                    raise DataError(self.path, f"missing required key '{'.'.join(keys)}'", self.line(*keys[:-1]))
+                return None
+            value = value[key]
+        return value
+
+    def number(self, *keys, required: bool = True) -> float | None:
+        value = self.get(*keys, required=required)
+        if value is None and not required:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.error(keys, f"expected a finite number, got {value!r}")
+        return float(value)
+
+    def vector(self, *keys, required: bool = True, positive: bool = False) -> np.ndarray | None:
+        value = self.get(*keys, required=required)
+        if value is None and not required:
+            return None
+        ok = isinstance(value, list) and len(value) == 3
+        ok = ok and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)
+        if not ok:
+            raise self.error(keys, f"expected a list of 3 finite numbers, got {value!r}")
+        vec = np.array(value, dtype=float)
+        if positive and (vec <= 0).any():
+            raise self.error(keys, f"standard deviations must be positive, got {value!r}")
+        return vec
+
+    def per_sensor(self, *keys) -> float:
+        """One value for the three axes (zennav keeps one noise value per sensor): the largest."""
+        vec = self.vector(*keys, positive=keys[-1] in ("arw", "vrw"))
+        if (vec < 0).any():
+            raise self.error(keys, f"must not be negative, got {vec.tolist()}")
+        if np.ptp(vec) > 0:
+            self.notes.append(f"{'.'.join(keys)} differs per axis; zennav uses the largest, {vec.max()}")
+        return float(vec.max())
+
+    def file(self, key: str, required: bool = True) -> Path | None:
+        """A file path; relative paths as KF-GINS (current directory), else relative to the YAML's folder."""
+        value = self.get(key, required=required)
+        if value is None and not required:
+            return None
+        if not isinstance(value, str) or not value:
+            raise self.error((key,), f"expected a file path, got {value!r}")
+        path = Path(value)
+        candidates = [path] if path.is_absolute() else [Path.cwd() / path, self.path.parent / path]
+        for candidate in candidates:
+            if candidate.is_file():
+                return candidate
+        where = "" if path.is_absolute() else f" (looked in {Path.cwd()} and {self.path.parent})"
+        raise self.error((key,), f"file '{value}' not found{where}")
+
+
+def load_config(yaml_path) -> Dataset:
+    """KF-GINS YAML configuration -> Dataset, everything converted once to SI.
+
+    KF-GINS units: initpos [deg, deg, m], initatt/initattstd [deg], initgyrbias/initbgstd/gbstd [deg/h],
+    initaccbias/initbastd/abstd [mGal], arw [deg/sqrt(h)], vrw [m/s/sqrt(h)], corrtime [h], antlever [m, FRD].
+    Scale-factor keys are accepted and ignored (zennav has 15 states). zennav extensions: gnssvelpath,
+    truthpath (.nav), truthinfo {fields, source, at_antenna}, imunoise.acccorrtime [h].
+    The time window keeps IMU samples in [starttime, endtime] and GNSS epochs in (starttime, endtime], as KF-GINS;
+    the initial state is at the first IMU sample of the window.
+    """
+    yaml_path = Path(yaml_path)
+    cfg = _Config(yaml_path)
+    # The whole configuration is checked before any data file is read.
+    columns = cfg.number("imudatalen")
+    if columns < 7 or columns != int(columns):
+        raise cfg.error(("imudatalen",), f"expected an integer >= 7, got {cfg.get('imudatalen')!r}")
+    rate_hz = cfg.number("imudatarate")
+    if rate_hz <= 0:
+        raise cfg.error(("imudatarate",), "must be positive")
+    start_ns = int(_t_ns(cfg.number("starttime")))
+    endtime = cfg.number("endtime")
+    tau_g = cfg.number("imunoise", "corrtime") * 3600.0
+    acc_tau_h = cfg.number("imunoise", "acccorrtime", required=False)
+    noise = ImuNoise(
+        arw=cfg.per_sensor("imunoise", "arw") * D2R / SQRT_H,
+        vrw=cfg.per_sensor("imunoise", "vrw") / SQRT_H,
+        gyro_bias_std=cfg.per_sensor("imunoise", "gbstd") * DEG_PER_H,
+        accel_bias_std=cfg.per_sensor("imunoise", "abstd") * MGAL,
+        gyro_bias_tau=tau_g,
+        accel_bias_tau=tau_g if acc_tau_h is None else acc_tau_h * 3600.0,
+    )
+    if tau_g <= 0 or noise.accel_bias_tau <= 0:
+        raise cfg.error(("imunoise", "corrtime"), "correlation time must be positive")
+    bg_std = cfg.vector("initbgstd", required=False, positive=True)
+    ba_std = cfg.vector("initbastd", required=False, positive=True)
+    # KF-GINS: without initbgstd/initbastd the initial bias std is the bias instability (gbstd/abstd), per axis.
+    bg_std = cfg.vector("imunoise", "gbstd") if bg_std is None else bg_std
+    ba_std = cfg.vector("imunoise", "abstd") if ba_std is None else ba_std
+    pos = cfg.vector("initpos")
+    initial_state = dict(
+        llh=np.array([pos[0] * D2R, pos[1] * D2R, pos[2]]),
+        v_n=cfg.vector("initvel"),
+        euler=cfg.vector("initatt") * D2R,
+        std_pos_ned=cfg.vector("initposstd", positive=True),
+        std_v_n=cfg.vector("initvelstd", positive=True),
+        std_euler=cfg.vector("initattstd", positive=True) * D2R,
+        gyro_bias=cfg.vector("initgyrbias") * DEG_PER_H,
+        accel_bias=cfg.vector("initaccbias") * MGAL,
+        std_gyro_bias=bg_std * DEG_PER_H,
+        std_accel_bias=ba_std * MGAL,
+    )
+    lever_arm_b = cfg.vector("antlever")
+    for key in ("initgyrscale", "initaccscale", "initsgstd", "initsastd", ("imunoise", "gsstd"), ("imunoise", "asstd")):
+        keys = key if isinstance(key, tuple) else (key,)
+        if cfg.get(*keys, required=False) is not None:
+            cfg.vector(*keys)
+            cfg.notes.append(f"{'.'.join(keys)} ignored: zennav estimates no scale factors (15 states)")
+    info = cfg.get("truthinfo", required=False) or {}
+    fields = info.get("fields", list(TRUTH_FIELDS)) if isinstance(info, dict) else None
+    if not isinstance(fields, list) or "pos" not in fields or not set(fields) <= set(TRUTH_FIELDS):
+        raise cfg.error(("truthinfo",), f"expected {{fields: list of {TRUTH_FIELDS} with 'pos', source, at_antenna}}")
+    imu_path, gnss_path = cfg.file("imupath"), cfg.file("gnsspath")
+    vel_path, truth_path = cfg.file("gnssvelpath", required=False), cfg.file("truthpath", required=False)
+
+    imu = load_imu(imu_path, int(columns))
+    gnss = load_gnss(gnss_path, vel_path)
+    end_ns = int(imu.t_ns[-1]) if endtime < 0 else int(_t_ns(endtime))
+    if start_ns < imu.t_ns[0]:
+        raise cfg.error(("starttime",), f"{start_ns / NS:.9f} s is before the first IMU time {imu.t_ns[0] / NS:.9f} s")
+    keep = (imu.t_ns >= start_ns) & (imu.t_ns <= end_ns)
+    if keep.sum() < 2:
+        raise cfg.error(("starttime",), "fewer than two IMU samples between starttime and endtime")
+    imu = imu.slice(keep)
+    gnss = gnss.slice((gnss.t_ns > start_ns) & (gnss.t_ns <= end_ns))
+    initial = InitialState(t_ns=int(imu.t_ns[0]), **initial_state)
+    config = NavConfig(imu_noise=noise, lever_arm_b=lever_arm_b, start_t_ns=initial.t_ns, end_t_ns=int(imu.t_ns[-1]))
+    truth = None
+    if truth_path is not None:
+        truth = load_nav(truth_path, str(info.get("source", "")), fields, bool(info.get("at_antenna", False)))
+    notes = {
+        "format": "KF-GINS",
+        "config": str(yaml_path),
+        "time": "GPS seconds of week",
+        "imu_rate_hz": rate_hz,
+        "outputpath": str(cfg.get("outputpath", required=False) or "."),
+        "gnss_fix": "the KF-GINS GNSS format has no fix type: every epoch is FixType.SINGLE, num_sats -1",
+        "remarks": cfg.notes,
+    }
+    return Dataset(yaml_path.stem, imu, gnss, config, initial, truth, notes)

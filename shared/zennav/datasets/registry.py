@@ -1,0 +1,79 @@
+"""Find and load datasets by name: the recordings in the shared data folder, KF-GINS YAML files, the simulator."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from zennav.datasets.errors import DataError
+from zennav.nav.types import Dataset
+
+RECORDINGS = {"rtklibexplorer": "rtklibexplorer_drive_0708", "comma2k19": "comma2k19_example_segment"}
+SIM_KINDS = ("car", "multirotor", "static")
+ACCEPTED = (
+    f"{', '.join(RECORDINGS)}, a KF-GINS .yaml/.yml file, a dataset folder, or "
+    + ", ".join(f"sim:{kind}" for kind in SIM_KINDS)
+)
+
+
+def data_root() -> Path:
+    """The shared data folder: $ZENNAV_DATA, else the first existing of <repo>/../shared/data (repo found by
+    walking up from this file to pyproject.toml), ./../shared/data, /work/shared/data."""
+    env = os.environ.get("ZENNAV_DATA")
+    if env:
+        if not Path(env).is_dir():
+            raise DataError(env, "ZENNAV_DATA is not a directory")
+        return Path(env)
+    here = Path(__file__).resolve()
+    repo = next((p for p in here.parents if (p / "pyproject.toml").is_file()), None)
+    candidates = ([repo.parent / "shared" / "data"] if repo else []) + [Path.cwd().parent / "shared" / "data"]
+    candidates.append(Path("/work/shared/data"))
+    for candidate in candidates:
+        if candidate.is_dir():
+            return candidate
+    raise DataError("data root", f"no data folder found (set ZENNAV_DATA); looked in {', '.join(map(str, candidates))}")
+
+
+def _load_folder(folder: Path, **options) -> Dataset:
+    """A dataset folder, recognized by its files."""
+    from zennav.datasets import comma2k19, kfgins, rtklibexplorer
+
+    if (folder / "global_pose").is_dir() and (folder / "processed_log").is_dir():
+        return comma2k19.load(folder, **options)
+    if any(folder.glob("imu_*.csv.tag")) and any(folder.glob("*.pos")):
+        return rtklibexplorer.load(folder, **options)
+    configs = sorted(folder.glob("*.yaml")) + sorted(folder.glob("*.yml"))
+    if len(configs) == 1:
+        return kfgins.load_config(configs[0], **options)
+    raise DataError(folder, f"not a known dataset folder (comma2k19, rtklibexplorer, or one KF-GINS YAML); "
+                            f"found {len(configs)} YAML files")
+
+
+def load_dataset(spec: str, **options) -> Dataset:
+    """Load a dataset from ``spec``: one of ACCEPTED. ``options`` go to the loader (e.g. prefilter="none")."""
+    from zennav.datasets import kfgins
+
+    if spec in RECORDINGS:
+        return _load_folder(data_root() / RECORDINGS[spec], **options)
+    if spec.startswith("sim:"):
+        kind = spec[4:]
+        if kind not in SIM_KINDS:
+            raise DataError(spec, f"unknown simulator scenario; accepted: {', '.join(SIM_KINDS)}")
+        from zennav.sim.scenarios import make_dataset
+
+        return make_dataset(kind, **options)
+    path = Path(spec)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        return kfgins.load_config(path, **options)
+    if path.is_dir():
+        return _load_folder(path, **options)
+    raise DataError(spec, f"unknown dataset; accepted: {ACCEPTED}")
+
+
+def available() -> list[str]:
+    """Specs that load_dataset accepts right now: the recordings present in data_root() and the simulator scenarios."""
+    try:
+        root = data_root()
+    except DataError:
+        root = None
+    recordings = [name for name, folder in RECORDINGS.items() if root is not None and (root / folder).is_dir()]
+    return recordings + [f"sim:{kind}" for kind in SIM_KINDS]
