@@ -23,29 +23,40 @@ _M_RATIO = OMEGA_IE**2 * A**2 * B / GM
 G0 = 9.80665  # standard gravity, for unit conversions only [m/s^2]
 
 
+def _xp(x):
+    """math for Python floats (the fast scalar path of per-sample loops), numpy for arrays."""
+    return math if isinstance(x, float) else np
+
+
 def radii(lat: float) -> tuple[float, float]:
-    """Meridian (R_M, north-south) and prime-vertical (R_N, east-west) radii of curvature [m]."""
-    s2 = math.sin(lat) ** 2
-    w = math.sqrt(1.0 - E2 * s2)
+    """Meridian (R_M, north-south) and prime-vertical (R_N, east-west) radii of curvature [m]; lat scalar or array."""
+    xp = _xp(lat)
+    s2 = xp.sin(lat) ** 2
+    w = xp.sqrt(1.0 - E2 * s2)
     return A * (1.0 - E2) / (w * w * w), A / w
 
 
 def gravity(lat: float, h: float) -> float:
-    """Magnitude of normal gravity [m/s^2] at geodetic latitude lat [rad] and height h [m]; points down in n."""
-    s2 = math.sin(lat) ** 2
-    g_surface = GAMMA_E * (1.0 + _K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
+    """Magnitude of normal gravity [m/s^2] at geodetic latitude lat [rad] and height h [m]; points down in n.
+    lat, h scalars or arrays."""
+    xp = _xp(lat)
+    s2 = xp.sin(lat) ** 2
+    g_surface = GAMMA_E * (1.0 + _K_SOMIGLIANA * s2) / xp.sqrt(1.0 - E2 * s2)
     return g_surface * (1.0 - 2.0 / A * (1.0 + F + _M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * h * h)
 
 
 def omega_ie_n(lat: float) -> np.ndarray:
-    """Earth rate resolved in NED [rad/s]."""
-    return np.array([OMEGA_IE * math.cos(lat), 0.0, -OMEGA_IE * math.sin(lat)])
+    """Earth rate resolved in NED [rad/s]: (3,) for a scalar lat, (N, 3) for lat of shape (N,)."""
+    xp = _xp(lat)
+    return np.array([OMEGA_IE * xp.cos(lat), 0.0 * lat, -OMEGA_IE * xp.sin(lat)]).T
 
 
 def omega_en_n(lat: float, h: float, v_n) -> np.ndarray:
-    """Transport rate (rotation of n relative to e) resolved in NED [rad/s] for velocity v_n [m/s]."""
+    """Transport rate (rotation of n relative to e) resolved in NED [rad/s] for velocity v_n [m/s];
+    (3,) for scalars, (N, 3) for lat, h of shape (N,) and v_n of shape (N, 3)."""
     r_m, r_n = radii(lat)
-    return np.array([v_n[1] / (r_n + h), -v_n[0] / (r_m + h), -v_n[1] * math.tan(lat) / (r_n + h)])
+    vn, ve = np.asarray(v_n).T[:2]
+    return np.array([ve / (r_n + h), -vn / (r_m + h), -ve * _xp(lat).tan(lat) / (r_n + h)]).T
 
 
 def llh_to_ecef(llh) -> np.ndarray:
@@ -105,6 +116,7 @@ def ned_to_llh(r_n, llh_ref) -> np.ndarray:
 
 
 def dr_to_dllh(lat: float, h: float) -> np.ndarray:
-    """Diagonal of D^-1: small NED offsets [m] -> (dlat, dlon, dh) [rad, rad, m] at latitude lat, height h."""
+    """Diagonal of D^-1: small NED offsets [m] -> (dlat, dlon, dh) [rad, rad, m] at latitude lat, height h;
+    (3,) for scalars, (N, 3) for arrays of shape (N,)."""
     r_m, r_n = radii(lat)
-    return np.array([1.0 / (r_m + h), 1.0 / ((r_n + h) * math.cos(lat)), -1.0])
+    return np.array([1.0 / (r_m + h), 1.0 / ((r_n + h) * _xp(lat).cos(lat)), -1.0 + 0.0 * (lat + h)]).T

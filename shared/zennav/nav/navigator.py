@@ -104,6 +104,9 @@ class Navigator:
         self._pending: list[GnssFix] = []
         self._reports: list[AidReport] = []
         self._last_fix_t_ns = -1
+        self._streak_start_t_ns: int | None = None  # first of the current run of rejected position fixes
+        self._streak_fixes = 0
+        self._streak_after_loss = False
         self._update_stds()
 
     # ------------------------------------------------------------------ inputs
@@ -134,6 +137,9 @@ class Navigator:
         if reason:
             self._reject_gnss(fix, reason)
             return
+        gap_s = (fix.t_ns - self._last_fix_t_ns) / NS if self._last_fix_t_ns >= 0 else 0.0
+        if self._streak_start_t_ns is None:
+            self._streak_after_loss = gap_s > self.config.outage_timeout_s
         self._last_fix_t_ns = fix.t_ns
         if fix.t_ns <= self.t_ns:
             self._fuse_gnss(fix)
@@ -233,20 +239,56 @@ class Navigator:
         fix_llh = np.asarray(fix.llh, dtype=float)
         v_ant_n = antenna_velocity(self.state, self._lever_b, omega_ib_b)
         z, H = position_model(self.state, self._lever_b, fix_llh, v_ant_n, age)
-        if self._update("gnss_pos", fix.t_ns, fix_llh, z, H, np.diag(np.square(fix.std_ned))):
+        cfg = self.config
+        R = np.diag(np.square(np.maximum(fix.std_ned, cfg.pos_std_floor_m)))
+        force = self._gate_trapped(fix.t_ns)
+        if force:
+            self._reset_position_velocity(z, R, fix.t_ns)
+        if self._update("gnss_pos", fix.t_ns, fix_llh, z, H, R, gated=not force):
             self.last_fused_t_ns = fix.t_ns
+            self._streak_start_t_ns, self._streak_fixes = None, 0
             if self.gnss_state != "valid":
                 log.warning("GNSS recovered at t=%.3f s after outage", fix.t_ns / NS)
                 self.counters["outage_recovered"] += 1
             self.gnss_state = "valid"
+        else:
+            if self._streak_start_t_ns is None:
+                self._streak_start_t_ns = fix.t_ns
+            self._streak_fixes += 1
         if fix.v_n is None or not self.config.use_gnss_velocity:
             return
         fix_v_n = np.asarray(fix.v_n, dtype=float)
         z, H = velocity_model(self.state, self._lever_b, omega_ib_b, fix_v_n)
-        self._update("gnss_vel", fix.t_ns, fix_v_n, z, H, np.diag(np.square(fix.std_v_n)))
+        R = np.diag(np.square(np.maximum(fix.std_v_n, cfg.vel_std_floor_mps)))
+        self._update("gnss_vel", fix.t_ns, fix_v_n, z, H, R)
 
-    def _update(self, source: str, t_ns: int, obs: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> bool:
-        gate = self._gate[len(z)]
+    def _gate_trapped(self, t_ns: int) -> bool:
+        """True when the current run of rejected position fixes says the INS has left its own uncertainty."""
+        if self._streak_start_t_ns is None:
+            return False
+        cfg = self.config
+        if self._streak_after_loss and self._streak_fixes >= cfg.reacquire_fixes:
+            return True
+        return (t_ns - self._streak_start_t_ns) / NS >= cfg.gate_reset_s
+
+    def _reset_position_velocity(self, z: np.ndarray, R: np.ndarray, t_ns: int) -> None:
+        """Decorrelate position and velocity and widen their variances to cover the innovation z [m] and the
+        velocity error that would explain it since the last fused fix; keeps P positive definite."""
+        P = self.kf.P
+        since_s = max((t_ns - self.last_fused_t_ns) / NS, 1.0)
+        var_pos = np.maximum(np.diag(P)[POS], z * z + np.diag(R))
+        var_vel = np.maximum(np.diag(P)[VEL], (z / since_s) ** 2)
+        P[0:6, :] = 0.0
+        P[:, 0:6] = 0.0
+        P[POS, POS] = np.diag(var_pos)
+        P[VEL, VEL] = np.diag(var_vel)
+        self.counters["gate_reset"] += 1
+        log.warning("t=%.3f s: %d GNSS fixes rejected in a row, INS taken as wrong: covariance reset, fix fused",
+                    t_ns / NS, self._streak_fixes)
+
+    def _update(self, source: str, t_ns: int, obs: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray,
+                gated: bool = True) -> bool:
+        gate = self._gate[len(z)] if gated else None
         res = self.kf.update(z, H, R, gate)
         reason = ""
         if res.fused:

@@ -78,16 +78,18 @@ def dcm_to_quat(C) -> np.ndarray:
 
 
 def euler_to_dcm(euler) -> np.ndarray:
-    """C_nb from ZYX Euler angles (roll, pitch, yaw) [rad]."""
-    r, p, y = euler
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array(
+    """C_nb from ZYX Euler angles (roll, pitch, yaw) [rad]: (3,) -> (3, 3), or (N, 3) -> (N, 3, 3)."""
+    r, p, y = np.asarray(euler, dtype=float).T
+    xp = math if isinstance(r, float) else np
+    cr, sr, cp, sp, cy, sy = xp.cos(r), xp.sin(r), xp.cos(p), xp.sin(p), xp.cos(y), xp.sin(y)
+    C = np.array(
         [
             [cp * cy, -cr * sy + sr * sp * cy, sr * sy + cr * sp * cy],
             [cp * sy, cr * cy + sr * sp * sy, -sr * cy + cr * sp * sy],
             [-sp, sr * cp, cr * cp],
         ]
     )
+    return np.moveaxis(C, (0, 1), (-2, -1))
 
 
 def dcm_to_euler(C) -> np.ndarray:

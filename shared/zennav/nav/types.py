@@ -175,7 +175,13 @@ class NavConfig:
     outage_timeout_s: an outage is declared when no valid fix has been fused for this long.
     cov_interval_s: longest interval over which the error covariance is propagated in one step.
     min_fix / min_sats / max_std_m: GNSS quality gates (num_sats -1 means unknown and passes).
-    max_jump_m: a fix further than this from the prediction, beyond its gate, counts as a jump.
+    max_jump_m: a rejected fix further than this [m] from the prediction is reported as a jump.
+    pos_std_floor_m / vel_std_floor_mps: lower bounds on the reported GNSS 1-sigma, standing for the errors that
+        formal RTK sigmas leave out (antenna phase centre, multipath, IMU/GNSS time-tag jitter).
+    gate_reset_s: when position fixes keep arriving but are all rejected for this long, the INS (not the GNSS)
+        is taken to be wrong: position/velocity covariance is reset from the innovation and the fix is fused.
+    reacquire_fixes: after a loss of GNSS (no fix for outage_timeout_s), this many consecutive rejected fixes
+        trigger the same reset (the INS drifted beyond its own uncertainty during the outage).
     """
 
     imu_noise: ImuNoise = field(default_factory=ImuNoise)
@@ -186,7 +192,11 @@ class NavConfig:
     min_fix: int = int(FixType.SINGLE)
     min_sats: int = 4
     max_std_m: float = 30.0
-    max_jump_m: float = 50.0
+    max_jump_m: float = 20.0
+    pos_std_floor_m: float = 0.05
+    vel_std_floor_mps: float = 0.1
+    gate_reset_s: float = 10.0
+    reacquire_fixes: int = 3
     use_gnss_velocity: bool = True
     start_t_ns: int | None = None
     end_t_ns: int | None = None
