@@ -110,9 +110,9 @@ class Navigator:
         self._update_stds()
 
     # ------------------------------------------------------------------ inputs
-    def on_imu(self, t_ns: int, dtheta_b, dvel_b) -> NavSolution | None:
-        """Process the increments [rad, m/s, body] of the IMU interval ending at t_ns; returns the solution,
-        or None when the sample is rejected (counted under its reason)."""
+    def on_imu(self, t_ns: int, dtheta_b, dvel_b) -> bool:
+        """Process the increments [rad, m/s, body] of the IMU interval ending at t_ns. Returns False when the
+        sample is rejected (counted under its reason); the solution is then `solution()`."""
         dtheta = [float(x) for x in dtheta_b]
         dvel = [float(x) for x in dvel_b]
         if not all(map(math.isfinite, dtheta + dvel)) or len(dtheta) != 3 or len(dvel) != 3:
@@ -129,7 +129,7 @@ class Navigator:
             self._fuse_gnss(fix)
         self._advance(t_ns, dtheta, dvel)
         self._check_outage()
-        return self.solution()
+        return True
 
     def on_gnss(self, fix: GnssFix) -> None:
         """Queue a GNSS fix; it is fused when the IMU stream reaches its time (at once if it is already past)."""
@@ -328,9 +328,9 @@ class Navigator:
             log.warning("GNSS outage declared at t=%.3f s (no valid fix for %.1f s)", self.t_ns / NS,
                         self.config.outage_timeout_s)
 
-    def _reject_imu(self, reason: str, t_ns) -> None:
+    def _reject_imu(self, reason: str, t_ns) -> bool:
         self._count_rejection(reason, t_ns, "")
-        return None
+        return False
 
     def _reject_gnss(self, fix: GnssFix, reason: str) -> None:
         self._count_rejection(reason, fix.t_ns, "")
