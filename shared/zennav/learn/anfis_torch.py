@@ -1,0 +1,307 @@
+"""ANFIS in torch and its trainers (trainer side only; the edge runs anfis_numpy).
+
+Hybrid learning (J.-S. R. Jang, IEEE Trans. SMC 23(3) 1993, sec. IV; seed 000): each epoch a forward pass
+with the premises fixed solves the consequents by regularised least squares (lse.ridge_lstsq), then a
+backward pass with the consequents fixed moves the premises by Fletcher-Reeves CG (fr_cg, strong Wolfe line
+search, restarts; the CG starts from steepest descent each epoch since the LSE changed the objective).
+For comparison: the same with plain gradient descent on the premises (Jang's fixed step length k:
+dp = -k g / |g|), Adam on all parameters from zero consequents (D. P. Kingma, J. Ba, ICLR 2015, written
+out here; torch.optim is not used), and PSO on the premises with least-squares consequents (seed 003).
+Epoch 0 of a training history is the initial model (consequents zero unless given).
+
+torch serves as the tensor library and autograd supplies the premise gradients. The premises are held as
+p = (log a, log b, c) so that a, b stay positive; the forward pass matches anfis_numpy.forward.
+The loss is the mean squared error over samples and outputs in normalised units; with ridge r the
+least-squares step minimises N*m*MSE + r*N*|theta|^2, so J = MSE + r |theta|^2 / m never increases in a
+hybrid epoch.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import torch
+
+from . import anfis_numpy
+from .fr_cg import fr_cg
+from .lse import ridge_lstsq
+from .pso import PSOConfig, Swarm
+
+METHODS = ("hybrid_cg", "hybrid_gd", "adam", "pso")
+
+
+def default_device() -> torch.device:
+    """The first CUDA device when torch sees one, else the CPU."""
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+class TorchAnfis:
+    """ANFIS with premise vector p = (log a, log b, c).ravel() and consequents theta (n_rules*(n_in+1), n_out).
+
+    Built from the arrays of anfis_numpy (consequents optional: zeros with n_out outputs).
+    """
+
+    def __init__(self, arrays: dict, *, n_out: int | None = None, device=None, dtype=torch.float64):
+        self.device, self.dtype = torch.device(device or "cpu"), dtype
+        t = dict(device=self.device, dtype=dtype)
+        a, b, c = (np.asarray(arrays[k], dtype=float) for k in ("a", "b", "c"))
+        self.n_in, self.n_mf = a.shape
+        self.rules = np.asarray(arrays["rules"], dtype=np.int64)
+        self.n_rules = len(self.rules)
+        self.p = torch.as_tensor(np.concatenate([np.log(a).ravel(), np.log(b).ravel(), c.ravel()]), **t)
+        cons = arrays.get("consequents")
+        if cons is None:
+            cons = np.zeros((self.n_rules, self.n_in + 1, n_out))
+        self.n_out = cons.shape[-1]
+        self.theta = torch.as_tensor(np.asarray(cons, dtype=float).reshape(-1, self.n_out), **t)
+        # one-hot selection: log w = log mu (N, n_in * n_mf) @ select_t, a gather whose backward is a matmul
+        select = np.zeros((self.n_rules, self.n_in, self.n_mf))
+        select[np.arange(self.n_rules)[:, None], np.arange(self.n_in), self.rules] = 1.0
+        self._select_t = torch.as_tensor(select.reshape(self.n_rules, -1).T, **t)
+        self._zero = torch.zeros((), **t)
+
+    def premises(self, p: torch.Tensor):
+        """(a, b, c), each (n_in, n_mf), from a premise vector."""
+        k = self.n_in * self.n_mf
+        shape = (self.n_in, self.n_mf)
+        return p[:k].exp().reshape(shape), p[k:2 * k].exp().reshape(shape), p[2 * k:].reshape(shape)
+
+    def firing(self, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        """Layers 1-3: normalised firing strengths (N, n_rules), differentiable in p.
+
+        log z2 is taken of z2 + 1e-300: no change where z2 > 1e-284, and at an MF centre (z2 = 0, where
+        anfis_numpy takes log 0 = -inf) mu = 1 / (1 + 1e-300^b), 1 to 1e-30 for b >= 0.1, with a finite
+        gradient.
+        """
+        a, b, c = self.premises(p)
+        z2 = ((x[:, :, None] - c) / a) ** 2
+        logmu = -torch.logaddexp(self._zero, b * torch.log(z2 + 1e-300))
+        return torch.softmax(logmu.reshape(x.shape[0], -1) @ self._select_t, dim=1)
+
+    def design(self, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        """Layer-4 regressors (N, n_rules*(n_in+1)): the output is design(x, p) @ theta."""
+        xe = torch.cat([x, torch.ones_like(x[:, :1])], dim=1)
+        return (self.firing(x, p)[:, :, None] * xe[:, None, :]).reshape(x.shape[0], -1)
+
+    def forward(self, x, p=None, theta=None) -> torch.Tensor:
+        """Layers 1-5 in normalised units, (N, n_in) -> (N, n_out)."""
+        p = self.p if p is None else p
+        theta = self.theta if theta is None else theta
+        return self.design(self.tensor(x), p) @ theta
+
+    def tensor(self, v) -> torch.Tensor:
+        return torch.as_tensor(v, dtype=self.dtype, device=self.device)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Arrays for anfis_numpy / paramset (float64 numpy on the CPU)."""
+        a, b, c = (v.detach().cpu().numpy().astype(np.float64) for v in self.premises(self.p))
+        cons = self.theta.detach().cpu().numpy().reshape(self.n_rules, self.n_in + 1, self.n_out)
+        return dict(a=a, b=b, c=c, rules=self.rules.copy(), consequents=cons.astype(np.float64))
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Trainer settings; the RMSE is in normalised output units. An epoch is one LSE + premise pass
+    (hybrid), one pass over the data in mini-batches (adam) or one swarm iteration (pso)."""
+
+    method: str = "hybrid_cg"
+    max_epochs: int = 100
+    goal_rmse: float = 0.0  # stop once the training RMSE is <= goal_rmse
+    tol: float = 1e-4  # ... or once the best training RMSE improved by < tol (relative) for `patience` epochs
+    patience: int = 3
+    ridge: float = 1e-8  # Tikhonov weight per sample in the least-squares step
+    cg_iters: int = 5  # FR-CG iterations on the premises per hybrid epoch
+    cg_restart_every: int | None = None  # None: n = number of premise parameters
+    cg_c2: float = 0.1
+    gd_step: float = 0.05  # hybrid_gd: premise step length per gradient step
+    gd_steps: int = 1
+    adam_lr: float = 0.01
+    adam_betas: tuple[float, float] = (0.9, 0.999)
+    adam_eps: float = 1e-8
+    batch_size: int = 256  # adam; 0 = full batch
+    pso: PSOConfig = field(default_factory=PSOConfig)
+    pso_log_span: float = math.log(4.0)  # PSO box: a and b within a factor 4 of their initial values ...
+    pso_c_span: float = 1.0  # ... centres within +- pso_c_span (normalised input units)
+    seed: int = 0
+
+
+@dataclass
+class TrainResult:
+    history: list[dict]  # per epoch (0 = start): epoch, rmse, val_rmse (None without validation), wall_s
+    stop_reason: str  # "goal", "tol" or "max_epochs"
+
+    @property
+    def epochs(self) -> int:
+        return self.history[-1]["epoch"]
+
+    @property
+    def rmse(self) -> float:
+        return self.history[-1]["rmse"]
+
+    @property
+    def wall_s(self) -> float:
+        return self.history[-1]["wall_s"]
+
+
+def _mse(model: TorchAnfis, x, y, p, theta) -> torch.Tensor:
+    return ((model.design(x, p) @ theta - y) ** 2).mean()
+
+
+def _lse(model: TorchAnfis, x, y, p, ridge: float) -> torch.Tensor:
+    with torch.no_grad():
+        return ridge_lstsq(model.design(x, p), y, ridge * x.shape[0])
+
+
+def _premise_grad(model: TorchAnfis, x, y, p, theta):
+    p = p.detach().requires_grad_(True)
+    loss = _mse(model, x, y, p, theta)
+    (g,) = torch.autograd.grad(loss, p)
+    return loss.detach(), g
+
+
+def train(model: TorchAnfis, x, y, config: TrainConfig = TrainConfig(), x_val=None, y_val=None) -> TrainResult:
+    """Fit model in place on normalised data x (N, n_in), y (N, n_out); optional validation set."""
+    if config.method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, not {config.method!r}")
+    x, y = model.tensor(x), model.tensor(y).reshape(len(x), -1)
+    val = None if x_val is None else (model.tensor(x_val), model.tensor(y_val).reshape(len(x_val), -1))
+    epoch_fn = _EPOCHS[config.method](model, x, y, config)
+    t0 = time.perf_counter()
+    history: list[dict] = []
+
+    def record(epoch: int):
+        with torch.no_grad():
+            rmse = math.sqrt(float(_mse(model, x, y, model.p, model.theta)))
+            vr = None if val is None else math.sqrt(float(_mse(model, *val, model.p, model.theta)))
+        history.append(dict(epoch=epoch, rmse=rmse, val_rmse=vr, wall_s=time.perf_counter() - t0))
+        return rmse
+
+    best, stale, stop = record(0), 0, "max_epochs"
+    for epoch in range(1, config.max_epochs + 1):
+        epoch_fn()
+        rmse = record(epoch)
+        if rmse <= config.goal_rmse:
+            stop = "goal"
+            break
+        stale = stale + 1 if rmse > best * (1.0 - config.tol) else 0
+        best = min(best, rmse)
+        if stale >= config.patience:
+            stop = "tol"
+            break
+    return TrainResult(history, stop)
+
+
+def _hybrid_cg(model, x, y, cfg):
+    def epoch():
+        model.theta = _lse(model, x, y, model.p, cfg.ridge)
+        res = fr_cg(lambda p: _premise_grad(model, x, y, p, model.theta), model.p, max_iter=cfg.cg_iters,
+                    gtol=0.0, restart_every=cfg.cg_restart_every, c2=cfg.cg_c2)
+        model.p = res.x.detach()
+    return epoch
+
+
+def _hybrid_gd(model, x, y, cfg):
+    def epoch():
+        model.theta = _lse(model, x, y, model.p, cfg.ridge)
+        for _ in range(cfg.gd_steps):
+            _, g = _premise_grad(model, x, y, model.p, model.theta)
+            model.p = model.p - cfg.gd_step * g / g.norm().clamp_min(1e-300)
+    return epoch
+
+
+def _adam(model, x, y, cfg):
+    b1, b2 = cfg.adam_betas
+    m = [torch.zeros_like(w) for w in (model.p, model.theta)]  # first and second moment estimates
+    v = [torch.zeros_like(w) for w in (model.p, model.theta)]
+    gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
+    step = 0
+
+    def epoch():
+        nonlocal step
+        n = x.shape[0]
+        bs = n if cfg.batch_size <= 0 else cfg.batch_size
+        order = torch.randperm(n, generator=gen).to(model.device)
+        for i in range(0, n, bs):
+            idx = order[i:i + bs]
+            p, theta = (w.detach().requires_grad_(True) for w in (model.p, model.theta))
+            grads = torch.autograd.grad(_mse(model, x[idx], y[idx], p, theta), (p, theta))
+            step += 1
+            new = []
+            for j, (w, g) in enumerate(zip((p, theta), grads)):
+                m[j] = b1 * m[j] + (1 - b1) * g
+                v[j] = b2 * v[j] + (1 - b2) * g * g
+                m_hat, v_hat = m[j] / (1 - b1**step), v[j] / (1 - b2**step)
+                new.append(w.detach() - cfg.adam_lr * m_hat / (v_hat.sqrt() + cfg.adam_eps))
+            model.p, model.theta = new
+    return epoch
+
+
+def _pso(model, x, y, cfg):
+    k = model.n_in * model.n_mf
+    span = np.concatenate([np.full(2 * k, cfg.pso_log_span), np.full(k, cfg.pso_c_span)])
+    p0 = model.p.cpu().numpy()
+
+    def cost(ps: np.ndarray) -> np.ndarray:
+        out = []
+        for p in model.tensor(ps):
+            theta = _lse(model, x, y, p, cfg.ridge)
+            out.append(float(_mse(model, x, y, p, theta)))
+        return np.array(out)
+
+    pso_cfg = replace(cfg.pso, max_iter=cfg.max_epochs)  # the inertia schedule spans the epochs
+    swarm = Swarm(cost, p0 - span, p0 + span, pso_cfg, x0=p0, seed=cfg.seed)
+
+    def epoch():
+        swarm.step()
+        model.p = model.tensor(swarm.best_x)
+        model.theta = _lse(model, x, y, model.p, cfg.ridge)
+    return epoch
+
+
+_EPOCHS = dict(hybrid_cg=_hybrid_cg, hybrid_gd=_hybrid_gd, adam=_adam, pso=_pso)
+
+
+@dataclass
+class FitResult:
+    arrays: dict[str, np.ndarray]  # anfis_numpy model arrays
+    norm: dict[str, np.ndarray]
+    train: TrainResult
+    metrics: dict  # for the parameter set: rmse per output in physical units, epochs, wall time, method
+
+
+def fit_anfis(x, y, *, n_rules: int | None = None, n_mf: int | None = None, config: TrainConfig = TrainConfig(),
+              x_val=None, y_val=None, device=None) -> FitResult:
+    """Normalise, build the rule base (k-means with n_rules rules, or a grid with n_mf MFs per input), train.
+
+    x, y in physical units, (N, n_in) and (N,) or (N, n_out). Exactly one of n_rules / n_mf.
+    """
+    if (n_rules is None) == (n_mf is None):
+        raise ValueError("give exactly one of n_rules (clusters) and n_mf (grid)")
+    x, y = _as_xy(x, y)
+    norm = anfis_numpy.fit_normalization(x, y)
+    xn, yn = (x - norm["x_mean"]) / norm["x_std"], (y - norm["y_mean"]) / norm["y_std"]
+    rb = (anfis_numpy.cluster_rulebase(xn, n_rules, seed=config.seed) if n_rules is not None
+          else anfis_numpy.grid_rulebase(xn, n_mf))
+    model = TorchAnfis(rb, n_out=y.shape[1], device=device or default_device())
+    val = (None, None)
+    if x_val is not None:
+        x_val, y_val = _as_xy(x_val, y_val)
+        val = ((x_val - norm["x_mean"]) / norm["x_std"], (y_val - norm["y_mean"]) / norm["y_std"])
+    result = train(model, xn, yn, config, *val)
+    arrays = model.to_arrays()
+
+    def rmse(xs, ys):
+        return np.sqrt(np.mean((anfis_numpy.predict(arrays, norm, xs) - ys) ** 2, axis=0)).tolist()
+
+    metrics = dict(method=config.method, epochs=result.epochs, wall_s=result.wall_s,
+                   stop_reason=result.stop_reason, train_rmse=rmse(x, y))
+    if x_val is not None:
+        metrics["val_rmse"] = rmse(x_val, y_val)
+    return FitResult(arrays, norm, result, metrics)
+
+
+def _as_xy(x, y) -> tuple[np.ndarray, np.ndarray]:
+    x = np.asarray(x, dtype=float)
+    return x, np.asarray(y, dtype=float).reshape(len(x), -1)

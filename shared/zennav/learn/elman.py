@@ -1,0 +1,139 @@
+"""Elman recurrent network with online learning on a sliding window (seed 002). numpy only, edge-side.
+
+J. L. Elman, "Finding structure in time", Cognitive Science 14 (1990) 179-211. As seed 002 (eq. 6-8):
+  u(k)  = f(W1 x(k) + W2 uc(k) + b1)      hidden layer, f(a) = (1 - e^-a) / (1 + e^-a) (bipolar sigmoid)
+  uc(k) = u(k-1) + alpha uc(k-1)           context layer (alpha = context_gain; 0 is Elman's copy-back)
+  y(k)  = W3 u(k) + b3                     linear ("purelin") output
+trained by back-propagation of the squared error with the context taken as an extra input (Elman's
+one-step truncation), by per-sample gradient steps over a fixed-size window of the newest samples; the
+oldest sample leaves the window when a new one arrives. As seed 002 says, learning starts only once
+alignment is done (set_aligned), and the network predicts only while its training error is under the
+threshold. Inputs and targets are normalised with the given means/stds; the threshold is an RMSE in
+normalised target units. The caller pairs each target with the features that explain it (seed 002 feeds
+x(k-1) for the increment ending at k).
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import numpy as np
+
+
+def bipolar_sigmoid(a: np.ndarray) -> np.ndarray:
+    """(1 - e^-a) / (1 + e^-a), computed as tanh(a/2); range (-1, 1), derivative (1 - f^2) / 2."""
+    return np.tanh(0.5 * a)
+
+
+class Elman:
+    """Online Elman network: learn(x, y) while the reference is good, predict(x) (None if not ready)."""
+
+    _ARRAYS = ("w1", "w2", "b1", "w3", "b3", "context", "win_x", "win_y", "win_ctx")
+
+    def __init__(self, n_in: int, n_hidden: int, n_out: int, *, window: int = 200, lr: float = 0.01,
+                 epochs: int = 1, threshold: float = 0.2, min_samples: int | None = None,
+                 context_gain: float = 0.0, norm: Mapping[str, np.ndarray] | None = None, seed: int = 0):
+        if window < 1 or epochs < 1:
+            raise ValueError("window and epochs must be >= 1")
+        self.n_in, self.n_hidden, self.n_out = n_in, n_hidden, n_out
+        self.window, self.lr, self.epochs, self.threshold = window, lr, epochs, threshold
+        self.min_samples = window if min_samples is None else min_samples
+        self.context_gain = context_gain
+        norm = norm or {}
+        self.x_mean = np.asarray(norm.get("x_mean", np.zeros(n_in)), dtype=float)
+        self.x_std = np.asarray(norm.get("x_std", np.ones(n_in)), dtype=float)
+        self.y_mean = np.asarray(norm.get("y_mean", np.zeros(n_out)), dtype=float)
+        self.y_std = np.asarray(norm.get("y_std", np.ones(n_out)), dtype=float)
+        rng = np.random.default_rng(seed)
+
+        def init(rows, cols):  # uniform +-1/sqrt(fan-in)
+            return rng.uniform(-1.0, 1.0, (rows, cols)) / math.sqrt(cols)
+
+        self.w1, self.w2, self.b1 = init(n_hidden, n_in), init(n_hidden, n_hidden), np.zeros(n_hidden)
+        self.w3, self.b3 = init(n_out, n_hidden), np.zeros(n_out)
+        self.context = np.zeros(n_hidden)
+        self.win_x, self.win_y = np.zeros((0, n_in)), np.zeros((0, n_out))
+        self.win_ctx = np.zeros((0, n_hidden))  # context each window sample was presented with
+        self.aligned = False
+        self.train_rmse = math.inf
+        self.n_learned = 0
+
+    def set_aligned(self, aligned: bool = True) -> None:
+        """Tell the network that the INS alignment is done (learning starts) or lost (learning stops)."""
+        self.aligned = aligned
+
+    @property
+    def ready(self) -> bool:
+        """Aligned, the window holds min_samples, and the last training RMSE is under the threshold."""
+        return self.aligned and len(self.win_x) >= self.min_samples and self.train_rmse <= self.threshold
+
+    def _hidden(self, xn: np.ndarray, ctx: np.ndarray) -> np.ndarray:
+        return bipolar_sigmoid(self.w1 @ xn + self.w2 @ ctx + self.b1)
+
+    def learn(self, x, y) -> float | None:
+        """Add (x, y) (physical units) as the newest window sample and train on the window.
+
+        Returns the training RMSE (normalised units), or None before alignment (nothing is stored then).
+        """
+        if not self.aligned:
+            return None
+        xn = (np.asarray(x, dtype=float) - self.x_mean) / self.x_std
+        yn = (np.asarray(y, dtype=float) - self.y_mean) / self.y_std
+        self.win_x = np.vstack([self.win_x, xn])[-self.window:]
+        self.win_y = np.vstack([self.win_y, yn])[-self.window:]
+        self.win_ctx = np.vstack([self.win_ctx, self.context])[-self.window:]
+        for _ in range(self.epochs):
+            self.train_rmse = self._train_pass()
+        self.n_learned += 1
+        return self.train_rmse
+
+    def _train_pass(self) -> float:
+        """One pass of per-sample gradient steps from the oldest window sample to the newest.
+
+        The contexts are recomputed with the current weights from the oldest sample's stored context.
+        """
+        ctx, sse = self.win_ctx[0].copy(), 0.0
+        for i in range(len(self.win_x)):
+            xn, yn = self.win_x[i], self.win_y[i]
+            self.win_ctx[i] = ctx
+            h = self._hidden(xn, ctx)
+            e = self.w3 @ h + self.b3 - yn
+            sse += float(e @ e)
+            dh = (self.w3.T @ e) * 0.5 * (1.0 - h * h)
+            self.w3 -= self.lr * np.outer(e, h)
+            self.b3 -= self.lr * e
+            self.w1 -= self.lr * np.outer(dh, xn)
+            self.w2 -= self.lr * np.outer(dh, ctx)
+            self.b1 -= self.lr * dh
+            ctx = h + self.context_gain * ctx
+        self.context = ctx
+        return math.sqrt(sse / (len(self.win_x) * self.n_out))
+
+    def predict(self, x) -> np.ndarray | None:
+        """Output (physical units) for input x, advancing the context; None while not ready."""
+        if not self.ready:
+            return None
+        xn = (np.asarray(x, dtype=float) - self.x_mean) / self.x_std
+        h = self._hidden(xn, self.context)
+        self.context = h + self.context_gain * self.context
+        return (self.w3 @ h + self.b3) * self.y_std + self.y_mean
+
+    def get_state(self) -> dict:
+        """Weights, context, window and counters as copies (numpy arrays and Python scalars)."""
+        state = {k: getattr(self, k).copy() for k in self._ARRAYS}
+        state.update(aligned=self.aligned, train_rmse=self.train_rmse, n_learned=self.n_learned)
+        return state
+
+    def set_state(self, state: Mapping) -> None:
+        """Restore a get_state() dict taken from a network of the same sizes."""
+        for k in self._ARRAYS:
+            v, cur = np.array(state[k], dtype=float), getattr(self, k)
+            if k.startswith("win_"):
+                ok = v.ndim == 2 and v.shape[1] == cur.shape[1] and len(v) <= self.window
+            else:
+                ok = v.shape == cur.shape
+            if not ok:
+                raise ValueError(f"state {k} has shape {v.shape}, network has {cur.shape}")
+            setattr(self, k, v)
+        self.aligned, self.train_rmse = bool(state["aligned"]), float(state["train_rmse"])
+        self.n_learned = int(state["n_learned"])

@@ -1,0 +1,207 @@
+"""Versioned ANFIS parameter sets (DESIGN.md sec. 5): build, encode, checksum, validate. numpy + msgpack only.
+
+Message (msgpack-friendly dict):
+  schema "zennav.paramset/1", kind "anfis", name str, version int >= 0, created_t_ns int,
+  norm {x_mean, x_std, y_mean, y_std}, arrays {a, b, c, rules, consequents} (see anfis_numpy),
+  metrics {str: int | float | str | list of numbers}, checksum "sha256:<hex>".
+Each array is {"dtype": "<f8" | "<i8", "shape": [...], "data": bytes (C order)}.
+The checksum is the SHA-256 of the msgpack encoding of every other field with map keys sorted at every level.
+validate() returns a read-only ParamSet or raises ParamSetRejected whose .reason is one of REASONS.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import time
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, Mapping
+
+import msgpack
+import numpy as np
+
+from .anfis_numpy import ARRAY_NAMES, NORM_NAMES
+
+SCHEMA = "zennav.paramset/1"
+KIND = "anfis"
+REASONS = ("decode", "schema", "checksum", "shape", "non_finite", "invalid_value", "stale_version")
+_FIELDS = {"schema": str, "kind": str, "name": str, "version": int, "created_t_ns": int, "norm": dict,
+           "arrays": dict, "metrics": dict, "checksum": str}
+_DTYPES = {"<f8": np.float64, "<i8": np.int64}
+
+
+class ParamSetRejected(ValueError):
+    """A parameter set failed validation; reason is one of REASONS, detail says what was wrong."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"{reason}: {detail}")
+        self.reason, self.detail = reason, detail
+
+
+@dataclass(frozen=True)
+class ParamSet:
+    """A validated parameter set; arrays and norm are read-only numpy arrays."""
+
+    name: str
+    version: int
+    created_t_ns: int
+    arrays: Mapping[str, np.ndarray]
+    norm: Mapping[str, np.ndarray]
+    metrics: Mapping[str, Any]
+    checksum: str
+
+    @property
+    def n_in(self) -> int:
+        return self.arrays["a"].shape[0]
+
+    @property
+    def n_out(self) -> int:
+        return self.arrays["consequents"].shape[-1]
+
+
+def _encode_array(a: np.ndarray) -> dict:
+    a = np.asarray(a)
+    dt = "<i8" if np.issubdtype(a.dtype, np.integer) else "<f8"
+    return {"dtype": dt, "shape": list(a.shape), "data": np.ascontiguousarray(a, dtype=dt).tobytes()}
+
+
+def _plain(v):
+    """numpy scalars/arrays and tuples in metrics -> Python numbers and lists."""
+    if isinstance(v, (np.ndarray, list, tuple)):
+        return [_plain(e) for e in v]
+    return v.item() if isinstance(v, np.generic) else v
+
+
+def _sorted(obj):
+    if isinstance(obj, dict):
+        return {k: _sorted(obj[k]) for k in sorted(obj)}
+    if isinstance(obj, (list, tuple)):
+        return [_sorted(v) for v in obj]
+    return obj
+
+
+def checksum(msg: Mapping) -> str:
+    """"sha256:<hex>" over the canonical encoding of msg without its checksum field."""
+    body = {k: v for k, v in msg.items() if k != "checksum"}
+    return "sha256:" + hashlib.sha256(msgpack.packb(_sorted(body), use_bin_type=True)).hexdigest()
+
+
+def build(name: str, version: int, arrays: Mapping[str, np.ndarray], norm: Mapping[str, np.ndarray],
+          metrics: Mapping[str, Any] | None = None, *, created_t_ns: int | None = None) -> dict:
+    """Parameter-set message from anfis_numpy arrays and normalisation, checksum included (not validated)."""
+    msg = {
+        "schema": SCHEMA,
+        "kind": KIND,
+        "name": name,
+        "version": int(version),
+        "created_t_ns": time.time_ns() if created_t_ns is None else int(created_t_ns),
+        "norm": {k: _encode_array(norm[k]) for k in NORM_NAMES},
+        "arrays": {k: _encode_array(arrays[k]) for k in ARRAY_NAMES},
+        "metrics": {str(k): _plain(v) for k, v in (metrics or {}).items()},
+    }
+    msg["checksum"] = checksum(msg)
+    return msg
+
+
+def encode(msg: Mapping) -> bytes:
+    """msgpack bytes of a message (for the wire)."""
+    return msgpack.packb(dict(msg), use_bin_type=True)
+
+
+def decode(payload: bytes) -> dict:
+    """Message from msgpack bytes; ParamSetRejected("decode") when they are not a msgpack map."""
+    try:
+        msg = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+    except Exception as e:  # msgpack raises several unrelated types for malformed input
+        raise ParamSetRejected("decode", f"not msgpack: {type(e).__name__}: {e}") from None
+    if not isinstance(msg, dict):
+        raise ParamSetRejected("decode", f"top level is {type(msg).__name__}, not a map")
+    return msg
+
+
+def _check_schema(msg: Mapping) -> None:
+    def bad(detail):
+        raise ParamSetRejected("schema", detail)
+
+    if set(msg) != set(_FIELDS):
+        bad(f"fields {sorted(map(str, msg))}, expected {sorted(_FIELDS)}")
+    for key, typ in _FIELDS.items():
+        if not isinstance(msg[key], typ) or (typ is int and isinstance(msg[key], bool)):
+            bad(f"field {key!r} is {type(msg[key]).__name__}, not {typ.__name__}")
+    if msg["schema"] != SCHEMA or msg["kind"] != KIND:
+        bad(f"unsupported schema/kind {msg['schema']!r}/{msg['kind']!r}")
+    if msg["version"] < 0:
+        bad("negative version")
+    for group, names in (("norm", NORM_NAMES), ("arrays", ARRAY_NAMES)):
+        if set(msg[group]) != set(names):
+            bad(f"{group} has {sorted(map(str, msg[group]))}, expected {sorted(names)}")
+        for k in names:
+            enc = msg[group][k]
+            if not (isinstance(enc, dict) and set(enc) == {"dtype", "shape", "data"}):
+                bad(f"{group}.{k} is not a {{dtype, shape, data}} map")
+            dtype = "<i8" if k == "rules" else "<f8"
+            if enc["dtype"] != dtype or not isinstance(enc["data"], bytes):
+                bad(f"{group}.{k}: dtype {enc['dtype']!r} (expected {dtype!r}) or data not bytes")
+            shape = enc["shape"]
+            if not (isinstance(shape, list) and all(isinstance(s, int) and s >= 0 for s in shape)):
+                bad(f"{group}.{k}: bad shape {shape!r}")
+            if len(enc["data"]) != 8 * math.prod(shape):
+                bad(f"{group}.{k}: {len(enc['data'])} bytes for shape {shape}")
+    for k, v in msg["metrics"].items():
+        ok = isinstance(v, (int, float, str)) or (
+            isinstance(v, list) and all(isinstance(e, (int, float)) for e in v))
+        if not isinstance(k, str) or not ok:
+            bad(f"metric {k!r} has an unsupported value type")
+
+
+def _decode_array(enc: Mapping) -> np.ndarray:
+    a = np.frombuffer(enc["data"], dtype=_DTYPES[enc["dtype"]]).reshape(enc["shape"]).copy()
+    a.setflags(write=False)
+    return a
+
+
+def _check_shapes(arrays, norm, n_in, n_out) -> None:
+    a, b, c, rules, cons = (arrays[k] for k in ARRAY_NAMES)
+    if a.ndim != 2 or b.shape != a.shape or c.shape != a.shape:
+        raise ParamSetRejected("shape", f"a, b, c {a.shape}, {b.shape}, {c.shape} differ or are not 2-D")
+    ni, nm = a.shape
+    if rules.ndim != 2 or rules.shape[1] != ni or rules.shape[0] < 1:
+        raise ParamSetRejected("shape", f"rules {rules.shape} is not (n_rules, {ni})")
+    if cons.ndim != 3 or cons.shape[:2] != (rules.shape[0], ni + 1):
+        raise ParamSetRejected("shape", f"consequents {cons.shape} is not ({rules.shape[0]}, {ni + 1}, n_out)")
+    no = cons.shape[2]
+    for k, want in (("x_mean", ni), ("x_std", ni), ("y_mean", no), ("y_std", no)):
+        if norm[k].shape != (want,):
+            raise ParamSetRejected("shape", f"norm.{k} {norm[k].shape} is not ({want},)")
+    for dim, got, want in (("n_in", ni, n_in), ("n_out", no, n_out)):
+        if want is not None and got != want:
+            raise ParamSetRejected("shape", f"{dim} is {got}, the model expects {want}")
+    if np.any(rules < 0) or np.any(rules >= nm):
+        raise ParamSetRejected("invalid_value", f"rule indices outside [0, {nm})")
+
+
+def validate(msg: Mapping, *, live_version: int | None = None, n_in: int | None = None,
+             n_out: int | None = None, name: str | None = None) -> ParamSet:
+    """Check schema, checksum, shapes (against n_in/n_out when given), finiteness, value ranges and that
+    the version is newer than live_version, in that order; the first failure raises ParamSetRejected."""
+    _check_schema(msg)
+    if name is not None and msg["name"] != name:
+        raise ParamSetRejected("schema", f"name {msg['name']!r} is not {name!r}")
+    expected = checksum(msg)
+    if msg["checksum"] != expected:
+        raise ParamSetRejected("checksum", f"{msg['checksum']!r} != computed {expected!r}")
+    arrays = {k: _decode_array(msg["arrays"][k]) for k in ARRAY_NAMES}
+    norm = {k: _decode_array(msg["norm"][k]) for k in NORM_NAMES}
+    _check_shapes(arrays, norm, n_in, n_out)
+    for group, d in (("arrays", arrays), ("norm", norm)):
+        for k, v in d.items():
+            if not np.all(np.isfinite(v)):
+                raise ParamSetRejected("non_finite", f"{group}.{k} has {int(np.sum(~np.isfinite(v)))} NaN/inf")
+    for group, d, k in (("arrays", arrays, "a"), ("arrays", arrays, "b"), ("norm", norm, "x_std"),
+                        ("norm", norm, "y_std")):
+        if np.any(d[k] <= 0.0):
+            raise ParamSetRejected("invalid_value", f"{group}.{k} must be > 0")
+    if live_version is not None and msg["version"] <= live_version:
+        raise ParamSetRejected("stale_version", f"version {msg['version']} is not above live {live_version}")
+    return ParamSet(msg["name"], msg["version"], msg["created_t_ns"], MappingProxyType(arrays),
+                    MappingProxyType(norm), MappingProxyType(dict(msg["metrics"])), msg["checksum"])

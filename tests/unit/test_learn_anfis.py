@@ -1,0 +1,139 @@
+"""ANFIS: numpy predictor vs torch model, rule bases, hybrid and comparison trainers."""
+import numpy as np
+import pytest
+
+from zennav.learn import anfis_numpy as an
+from zennav.learn import paramset
+
+torch = pytest.importorskip("torch")
+torch.set_num_threads(1)
+
+from zennav.learn.anfis_torch import METHODS, TorchAnfis, TrainConfig, fit_anfis, train  # noqa: E402
+from zennav.learn.pso import PSOConfig  # noqa: E402
+
+
+def _sinc2d(n=11):
+    g = np.linspace(-10.0, 10.0, n)
+    x = np.array([(a, b) for a in g for b in g])
+    return x, np.sinc(x[:, 0] / np.pi) * np.sinc(x[:, 1] / np.pi)
+
+
+def _random_model(n_in=5, n_rules=6, n_out=2, seed=0):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(300, n_in))
+    arrays = an.cluster_rulebase(x, n_rules, seed=seed)
+    arrays["b"] = rng.uniform(0.3, 4.0, size=arrays["b"].shape)  # slopes below and above 1/2
+    arrays["consequents"] = rng.normal(size=(n_rules, n_in + 1, n_out))
+    return x, arrays
+
+
+def test_bell_membership_matches_the_textbook_formula():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(50, 3))
+    a, b, c = rng.uniform(0.5, 2, (3, 4)), rng.uniform(0.5, 3, (3, 4)), rng.normal(size=(3, 4))
+    x[0, 1] = c[1, 2]  # exactly at a centre
+    mu = 1.0 / (1.0 + np.abs((x[:, :, None] - c) / a) ** (2.0 * b))
+    np.testing.assert_allclose(np.exp(an.log_bell(x, a, b, c)), mu, rtol=1e-13, atol=1e-300)
+
+
+def test_firing_equals_the_normalised_product_of_memberships():
+    x, arrays = _random_model(n_in=3, n_rules=4)
+    mu = np.exp(an.log_bell(x, arrays["a"], arrays["b"], arrays["c"]))
+    rules = arrays["rules"]
+    w = np.stack([np.prod([mu[:, j, rules[r, j]] for j in range(3)], axis=0) for r in range(4)], axis=1)
+    wbar = an.normalized_firing(x, arrays["a"], arrays["b"], arrays["c"], arrays["rules"])
+    np.testing.assert_allclose(wbar, w / w.sum(axis=1, keepdims=True), rtol=1e-12)
+
+
+def test_numpy_predictor_equals_torch_forward():
+    x, arrays = _random_model()
+    x[3] = arrays["c"][:, 2]  # a sample exactly on a rule centre
+    model = TorchAnfis(arrays)
+    y_torch = model.forward(x).numpy()
+    y_numpy = an.forward(model.to_arrays(), x)
+    assert np.max(np.abs(y_numpy - y_torch)) <= 1e-6
+    np.testing.assert_allclose(y_numpy, y_torch, rtol=1e-12, atol=1e-12)  # in fact to rounding
+
+
+def test_torch_gradient_is_finite_at_a_membership_centre():
+    x, arrays = _random_model(n_in=2, n_rules=3, n_out=1)
+    x[0] = arrays["c"][:, 0]
+    model = TorchAnfis(arrays)
+    p = model.p.clone().requires_grad_(True)
+    model.forward(x, p=p).sum().backward()
+    assert torch.isfinite(p.grad).all()
+
+
+def test_far_inputs_give_finite_output():
+    _, arrays = _random_model(n_in=10, n_rules=8, n_out=1)
+    y = an.forward(arrays, np.full((2, 10), 1e3))
+    assert np.all(np.isfinite(y))
+
+
+def test_rule_bases():
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(500, 10))
+    rb = an.cluster_rulebase(x, 12, seed=4)
+    assert rb["rules"].shape == (12, 10) and rb["a"].shape == (10, 12)
+    assert np.all(rb["a"] >= 0.1)
+    rb2 = an.cluster_rulebase(x, 12, seed=4)
+    assert all(np.array_equal(rb[k], rb2[k]) for k in rb)  # seeded
+    with pytest.raises(ValueError, match="cluster_rulebase"):
+        an.grid_rulebase(x, 2)  # 2**10 rules
+    g = an.grid_rulebase(x[:, :2], 3)
+    assert g["rules"].shape == (9, 2) and len({tuple(r) for r in g["rules"]}) == 9
+    np.testing.assert_allclose(g["c"][:, [0, -1]], np.stack([x[:, :2].min(0), x[:, :2].max(0)], axis=1))
+
+
+def test_hybrid_epochs_reduce_the_loss_monotonically():
+    x, y = _sinc2d()
+    fit = fit_anfis(x, y, n_mf=4, config=TrainConfig(max_epochs=40, tol=0.0, cg_iters=5), device="cpu")
+    rmse = np.array([h["rmse"] for h in fit.train.history])
+    assert fit.train.stop_reason == "max_epochs" and len(rmse) == 41
+    # LSE is exact and every CG step satisfies the Armijo condition: J never rises (ridge adds ~1e-8)
+    assert np.all(np.diff(rmse[1:]) <= 1e-7 * rmse[1:-1])
+    assert rmse[-1] < 0.3 * rmse[1]
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_every_method_learns_sinc(method):
+    x, y = _sinc2d()
+    cfg = TrainConfig(method=method, max_epochs=15, tol=0.0, pso=PSOConfig(n_particles=8), batch_size=32,
+                      adam_lr=0.05)
+    fit = fit_anfis(x, y, n_mf=3, config=cfg, device="cpu")
+    rmse = [h["rmse"] for h in fit.train.history]
+    assert rmse[-1] < 0.9 * rmse[0]
+    assert fit.metrics["method"] == method and fit.metrics["epochs"] == 15
+
+
+def test_stopping_rules():
+    x, y = _sinc2d(7)
+    xn, yn = (x - x.mean(0)) / x.std(0), (y - y.mean()) / y.std()
+
+    def fresh():
+        return TorchAnfis(an.grid_rulebase(xn, 3), n_out=1)
+
+    assert train(fresh(), xn, yn, TrainConfig(goal_rmse=0.9, max_epochs=50)).stop_reason == "goal"
+    res = train(fresh(), xn, yn, TrainConfig(method="hybrid_gd", gd_step=1e-9, tol=1e-3, patience=2,
+                                             max_epochs=50))
+    assert res.stop_reason == "tol" and res.epochs < 10
+    assert train(fresh(), xn, yn, TrainConfig(tol=0.0, max_epochs=3)).epochs == 3
+    with pytest.raises(ValueError):
+        train(fresh(), xn, yn, TrainConfig(method="sgd"))
+
+
+def test_fit_to_paramset_to_numpy_prediction():
+    rng = np.random.default_rng(5)
+    x = rng.uniform(-1.0, 1.0, size=(400, 4)) * [1.0, 10.0, 0.1, 5.0]
+    y = np.stack([np.sin(x[:, 0]) + 0.1 * x[:, 1], x[:, 2] * x[:, 3]], axis=1) * 30.0
+    cfg = TrainConfig(max_epochs=10)
+    fit = fit_anfis(x[:300], y[:300], n_rules=6, config=cfg, x_val=x[300:], y_val=y[300:], device="cpu")
+    msg = paramset.build("anfis-test", 1, fit.arrays, fit.norm, fit.metrics)
+    ps = paramset.validate(paramset.decode(paramset.encode(msg)), live_version=0, n_in=4, n_out=2)
+    y_hat = an.predict(ps.arrays, ps.norm, x[300:])
+    np.testing.assert_allclose(np.sqrt(np.mean((y_hat - y[300:]) ** 2, axis=0)), ps.metrics["val_rmse"],
+                               rtol=1e-9)
+    assert np.all(np.array(ps.metrics["val_rmse"]) < y.std(axis=0))
+    single = an.predict(ps.arrays, ps.norm, x[300])  # one sample, as the edge calls it
+    assert single.shape == (2,)
+    np.testing.assert_allclose(single, y_hat[0], rtol=1e-12)

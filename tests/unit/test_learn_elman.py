@@ -1,0 +1,84 @@
+"""Elman network: online window learning, gating, state round trip."""
+import numpy as np
+import pytest
+
+from zennav.learn.elman import Elman, bipolar_sigmoid
+
+
+def _sequence(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    t = 0.1 * np.arange(n)
+    x = np.stack([np.sin(t), np.cos(0.5 * t), 0.1 * rng.normal(size=n)], axis=1)
+    y = (0.5 * np.sin(t - 0.3) + 0.2 * np.cos(0.5 * t) ** 2)[:, None] * 4.0 + 1.0
+    return x, y
+
+
+def _net(**kw):
+    args = dict(window=60, lr=0.05, threshold=0.15, norm=dict(y_mean=np.array([1.0]), y_std=np.array([4.0])),
+                seed=3)
+    args.update(kw)
+    return Elman(3, 8, 1, **args)
+
+
+def test_bipolar_sigmoid():
+    a = np.linspace(-30, 30, 101)
+    np.testing.assert_allclose(bipolar_sigmoid(a), (1 - np.exp(-a)) / (1 + np.exp(-a)), rtol=1e-12, atol=1e-15)
+
+
+def test_learns_only_after_alignment_and_predicts_only_under_threshold():
+    x, y = _sequence()
+    net = _net()
+    assert net.learn(x[0], y[0]) is None and len(net.win_x) == 0  # not aligned: nothing stored
+    assert net.predict(x[0]) is None
+    net.set_aligned()
+    ready = []
+    for i in range(300):
+        net.learn(x[i], y[i])
+        ready.append(net.ready)
+    assert len(net.win_x) == net.window == 60  # fixed-size window of the newest samples
+    np.testing.assert_allclose(net.win_y[-1], (y[299] - 1.0) / 4.0)
+    assert not any(ready[:59])  # min_samples defaults to the window size
+    assert net.ready and net.train_rmse <= 0.15
+    pred = np.array([net.predict(x[i]) for i in range(300, 340)])
+    assert np.sqrt(np.mean((pred - y[300:340]) ** 2)) < 0.15 * 4.0
+
+    strict = _net(threshold=1e-6)  # never reaches its threshold: never predicts
+    strict.set_aligned()
+    for i in range(100):
+        strict.learn(x[i], y[i])
+    assert not strict.ready and strict.predict(x[100]) is None
+
+
+def test_not_ready_before_the_window_fills():
+    x, y = _sequence()
+    net = _net(min_samples=30)
+    net.set_aligned()
+    for i in range(29):
+        net.learn(x[i], y[i])
+    assert not net.ready
+    net.set_aligned(False)
+    assert net.learn(x[29], y[29]) is None and not net.ready
+
+
+def test_state_round_trip_gives_identical_outputs():
+    x, y = _sequence()
+    net = _net()
+    net.set_aligned()
+    for i in range(150):
+        net.learn(x[i], y[i])
+    state = net.get_state()
+    clone = _net(seed=99)  # different initial weights, overwritten by the state
+    clone.set_state(state)
+    outputs = []
+    for other in (net, clone):
+        out = [other.learn(x[i], y[i]) for i in range(150, 170)]
+        out += [other.predict(x[i]) for i in range(170, 190)]
+        out += [other.learn(x[i], y[i]) for i in range(190, 195)]
+        outputs.append(out)
+    assert outputs[0][20] is not None
+    for a, b in zip(*outputs):
+        np.testing.assert_array_equal(a, b)
+    state["win_x"][:] = 0.0  # get_state returns copies
+    assert np.any(net.win_x != 0.0)
+    with pytest.raises(ValueError):
+        Elman(3, 5, 1).set_state(net.get_state())
