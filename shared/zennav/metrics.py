@@ -172,7 +172,8 @@ def write_outputs(out_dir: Path, ds: Dataset, res: ReplayResult, metrics: dict) 
 
     out_dir.mkdir(parents=True, exist_ok=True)
     euler = euler_batch(res.q_nb)
-    kfgins.write_nav(out_dir / "nav.txt", ds.notes.get("gps_week"), res.t_ns, res.llh, res.v_n, euler)
+    week = int(res.t_ns[0] // kfgins.WEEK_NS)  # 0 for data timed in seconds of week
+    kfgins.write_nav(out_dir / "nav.txt", week, res.t_ns, res.llh, res.v_n, euler)
     header = "t_s,lat_deg,lon_deg,h_m,vn_mps,ve_mps,vd_mps,roll_deg,pitch_deg,yaw_deg,std_n_m,std_e_m,std_d_m,outage"
     cols = np.column_stack(
         [res.t_ns / NS, np.degrees(res.llh[:, :2]), res.llh[:, 2], res.v_n, np.degrees(euler), res.std_pos_ned,
