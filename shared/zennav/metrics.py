@@ -123,7 +123,7 @@ def evaluate(ds: Dataset, res: ReplayResult) -> dict:
         h = horiz[inside]
         m["outages"].append(
             {
-                "start_s": (a - res.t_ns[0]) / NS,
+                "start_s": (a - ds.initial.t_ns) / NS,
                 "duration_s": (b - a) / NS,
                 "max_horizontal_m": float(h.max()),
                 "final_horizontal_m": float(h[-1]),
