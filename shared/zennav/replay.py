@@ -57,11 +57,14 @@ def run_replay(
     outages: list[tuple[float, float]] = (),
     outage_every: tuple[float, float, float] | None = None,
     navigator: Navigator | None = None,
+    compensator=None,
 ) -> ReplayResult:
     """Run the engine over ds from its initial-state time to its end (config.end_t_ns or the last IMU sample).
     GNSS fixes inside the windows are withheld; every other fix is handed over before the first IMU sample
-    at or after its time."""
-    nav = navigator or Navigator(ds.config, ds.initial)
+    at or after its time. A compensator (zennav.compensation) learns from the engine's training samples and
+    answers its queries while GNSS is lost."""
+    config = ds.config.with_(learning=True) if compensator is not None else ds.config
+    nav = navigator or Navigator(config, ds.initial)
     imu, gnss = ds.imu, ds.gnss
     t_imu = imu.t_ns
     k0 = int(np.searchsorted(t_imu, ds.initial.t_ns, side="right"))
@@ -95,6 +98,12 @@ def run_replay(
         out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)
         std[i] = nav.std_pos_ned
         outage[i] = nav.gnss_state != "valid"
+        if compensator is not None:
+            compensator.add(nav.pop_samples())
+            for query in nav.pop_queries():
+                prediction = compensator.predict(query)
+                if prediction is not None:
+                    nav.on_correction(query, compensator.target, *prediction)
         reports.extend(nav.pop_reports())
     wall = time.perf_counter() - wall0
     return ReplayResult(

@@ -34,16 +34,19 @@ def _parse_every(text: str) -> tuple[float, float, float]:
     return period, dur, vals[2] if len(vals) == 3 else period - dur
 
 
-def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool) -> dict:
+def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
+                   target: str = "position") -> dict:
     """Load, replay, evaluate, write and print; returns the metrics."""
+    from .compensation import make_compensator
     from .datasets.registry import load_dataset
 
     try:
         ds = load_dataset(spec)
     except DataError as e:
         raise click.ClickException(str(e)) from None
-    res = run_replay(ds, outages=list(outages), outage_every=every)
+    res = run_replay(ds, outages=list(outages), outage_every=every, compensator=make_compensator(compensation, target))
     metrics = evaluate(ds, res)
+    metrics["compensation"] = {"model": compensation, "target": target if compensation != "none" else None}
     if out is not None:
         write_outputs(out, ds, res, metrics)
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
@@ -64,6 +67,11 @@ _outage_opts = [
                  help="Write nav.txt (KF-GINS .nav: week, sow, lat/lon deg, h m, v NED m/s, roll/pitch/yaw deg), "
                  "nav.csv and metrics.json here."),
     click.option("--json", "as_json", is_flag=True, help="Print metrics.json instead of the table."),
+    click.option("--compensation", type=click.Choice(["none", "anfis", "elman"]), default="none", show_default=True,
+                 help="Learned INS-error compensation during outages (ANFIS: seed 000, Elman: seed 002)."),
+    click.option("--target", type=click.Choice(["position", "velocity"]), default="position", show_default=True,
+                 help="What the model learns: the filter's position corrections (seed 000) or its velocity "
+                 "corrections, i.e. increments of INS minus filter (seed 002)."),
     click.option("-v", "--verbose", count=True, help="Log engine events (-v: warnings, -vv: debug)."),
 ]
 
@@ -85,7 +93,7 @@ def _setup_logging(verbose: int) -> None:
               help="A KF-GINS YAML configuration; its IMU/GNSS files, time window, initial state, IMU noise "
               "and lever arm are used unchanged.")
 @_with_outage_opts
-def replay(dataset, kf_gins_config, outages, every, out, as_json, verbose):
+def replay(dataset, kf_gins_config, outages, every, out, as_json, compensation, target, verbose):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
@@ -95,7 +103,7 @@ def replay(dataset, kf_gins_config, outages, every, out, as_json, verbose):
     _setup_logging(verbose)
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
-    replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json)
+    replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target)
 
 
 @click.command()

@@ -6,12 +6,14 @@ times are integer nanoseconds of GPS time (``t_ns``) in the dataset's own refere
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from enum import IntEnum
 
 import numpy as np
 
 NS = 1_000_000_000
+HEADING_UNKNOWN_STD = math.radians(20.0)  # a yaw 1-sigma above this [rad] is too large for a small-angle filter
 
 
 class FixType(IntEnum):
@@ -151,7 +153,12 @@ class ImuNoise:
 
 @dataclass
 class InitialState:
-    """Initial navigation state and its 1-sigma uncertainty (SI; attitude as roll, pitch, yaw [rad])."""
+    """Initial navigation state and its 1-sigma uncertainty (SI; attitude as roll, pitch, yaw [rad]).
+
+    heading_known: False says "heading unknown": euler[2] is ignored and the navigator aligns (zennav.nav.alignment:
+    gyrocompassing at rest where the gyro allows it, else yaw from the GNSS velocity once moving). A non-finite
+    yaw or a yaw 1-sigma above HEADING_UNKNOWN_STD says the same (`heading_is_known`).
+    """
 
     t_ns: int
     llh: np.ndarray
@@ -164,6 +171,12 @@ class InitialState:
     accel_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     std_gyro_bias: np.ndarray | None = None  # None: the ImuNoise bias std
     std_accel_bias: np.ndarray | None = None
+    heading_known: bool = True
+
+    def heading_is_known(self) -> bool:
+        """True when the yaw can start a small-angle error-state filter (see the class docstring)."""
+        yaw, std = float(self.euler[2]), float(self.std_euler[2])
+        return bool(self.heading_known) and math.isfinite(yaw) and std <= HEADING_UNKNOWN_STD
 
 
 @dataclass
@@ -182,6 +195,20 @@ class NavConfig:
         is taken to be wrong: position/velocity covariance is reset from the innovation and the fix is fused.
     reacquire_fixes: after a loss of GNSS (no fix for outage_timeout_s), this many consecutive rejected fixes
         trigger the same reset (the INS drifted beyond its own uncertainty during the outage).
+
+    Alignment (zennav.nav.alignment; used when the initial heading is unknown, InitialState.heading_is_known):
+    align_min_speed_mps: GNSS horizontal speed [m/s] above which yaw = course and pitch = climb angle (in motion).
+    align_course_std / align_tilt_std: 1-sigma [rad] of heading minus course (sideslip, yaw mounting) and of
+        roll 0 / pitch = climb angle for a ground vehicle when no better tilt is known.
+    align_still_speed_mps: GNSS speed [m/s] below which the vehicle counts as at rest (levelling, gyrocompassing).
+    align_level_s / align_gyrocompass_s: rest time [s] needed to level / to gyrocompass.
+    align_gyrocompass_max_std: gyrocompassing is refused when its predicted heading 1-sigma exceeds this [rad].
+    align_heading_std: the alignment is complete ('aligned') when the heading 1-sigma is below this [rad].
+
+    Adaptive R (zennav.nav.adaptive_r, seed 001), one estimator per GNSS source (position, velocity):
+    adaptive_r: on/off; adaptive_window: m [updates]; adaptive_forgetting: b; adaptive_test_probability: the
+    chi-square quantile of the inflation test; adaptive_floor / adaptive_ceiling: R bounds relative to the
+    reported (floored) R, as variance ratios.
     """
 
     imu_noise: ImuNoise = field(default_factory=ImuNoise)
@@ -198,6 +225,22 @@ class NavConfig:
     gate_reset_s: float = 10.0
     reacquire_fixes: int = 3
     use_gnss_velocity: bool = True
+    align_min_speed_mps: float = 3.0
+    align_course_std: float = math.radians(2.0)
+    align_tilt_std: float = math.radians(5.0)
+    align_still_speed_mps: float = 0.1
+    align_level_s: float = 5.0
+    align_gyrocompass_s: float = 60.0
+    align_gyrocompass_max_std: float = math.radians(10.0)
+    align_heading_std: float = math.radians(0.5)
+    adaptive_r: bool = True
+    adaptive_window: int = 5
+    adaptive_forgetting: float = 0.95
+    adaptive_test_probability: float = 0.99
+    adaptive_floor: float = 1.0
+    adaptive_ceiling: float = 400.0
+    learning: bool = False  # emit LearnSample / LearnQuery for learned INS-error compensation (nav/learning.py)
+    learn_after_s: float = 30.0  # no training samples before this time [s] from the start (filter converging)
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 

@@ -1,0 +1,115 @@
+"""Learned INS-error compensation in one process: the learning loop of DESIGN.md section 5 without transport.
+
+A compensator takes the navigation engine's LearnSamples while GNSS is good and answers its LearnQueries
+while GNSS is lost with a predicted error rate and its 1-sigma (nav/learning.py). Two models:
+- "anfis" (seed 000): first-order Takagi-Sugeno ANFIS, k-means rule base, trained by the hybrid
+  least-squares + Fletcher-Reeves CG learner on the newest samples when a prediction is first needed after
+  new samples arrived (i.e. at the start of each outage); predicts with the numpy forward pass.
+- "elman" (seed 002): Elman network trained online on a sliding window of the newest samples; predicts
+  only while its training error is under its threshold.
+The 1-sigma of a prediction is the model's RMS training residual per output.
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from .learn import anfis_numpy
+from .learn.elman import Elman
+from .nav.learning import FEATURE_NAMES, TARGETS, LearnQuery, LearnSample
+
+MODELS = ("none", "anfis", "elman")
+
+
+class AnfisCompensator:
+    """ANFIS (hybrid LSE + FR-CG) over the newest `window` samples; retrains lazily when new samples arrived."""
+
+    def __init__(self, target: str = "position", n_rules: int = 8, window: int = 2000, min_samples: int = 100,
+                 max_epochs: int = 30, seed: int = 0):
+        if target not in TARGETS:
+            raise ValueError(f"target must be one of {TARGETS}")
+        self.target, self.n_rules, self.min_samples, self.max_epochs, self.seed = (
+            target, n_rules, min_samples, max_epochs, seed)
+        self._x: deque = deque(maxlen=window)
+        self._y: deque = deque(maxlen=window)
+        self._stale = False
+        self.model: tuple[dict, dict] | None = None
+        self.rate_std: np.ndarray | None = None
+        self.trainings: list[dict] = []
+
+    def add(self, samples: list[LearnSample]) -> None:
+        for s in samples:
+            self._x.append(s.features)
+            self._y.append(getattr(s, self.target))
+        self._stale = self._stale or bool(samples)
+
+    def _train(self) -> None:
+        from .learn.anfis_torch import TrainConfig, fit_anfis  # torch only when training in-process
+
+        x, y = np.array(self._x), np.array(self._y)
+        fit = fit_anfis(x, y, n_rules=self.n_rules, config=TrainConfig(max_epochs=self.max_epochs, seed=self.seed))
+        self.model = (fit.arrays, fit.norm)
+        self.rate_std = np.maximum(np.asarray(fit.metrics["train_rmse"], dtype=float), 1e-6)
+        self.trainings.append({"samples": len(x), **{k: fit.metrics[k] for k in ("epochs", "wall_s", "train_rmse")}})
+        self._stale = False
+
+    def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:
+        if self._stale and len(self._x) >= self.min_samples:
+            self._train()
+        if self.model is None:
+            return None
+        arrays, norm = self.model
+        return anfis_numpy.predict(arrays, norm, query.features[None, :])[0], self.rate_std
+
+
+class ElmanCompensator:
+    """Online Elman network (seed 002) on a sliding window; silent until its training error is acceptable.
+    The input/output normalisation is fixed from the first `window` samples, then learning starts."""
+
+    def __init__(self, target: str = "position", n_hidden: int = 12, window: int = 200, threshold: float = 0.8,
+                 seed: int = 0):
+        if target not in TARGETS:
+            raise ValueError(f"target must be one of {TARGETS}")
+        self.target, self.n_hidden, self.window, self.threshold, self.seed = target, n_hidden, window, threshold, seed
+        self.net: Elman | None = None
+        self._first: list[tuple[np.ndarray, np.ndarray]] = []
+        self._residuals: deque = deque(maxlen=window)
+
+    def _learn(self, x: np.ndarray, y: np.ndarray) -> None:
+        if self.net.ready:
+            self._residuals.append(self.net.predict(x) - y)
+        self.net.learn(x, y)
+
+    def add(self, samples: list[LearnSample]) -> None:
+        for s in samples:
+            x, y = s.features, getattr(s, self.target)
+            if self.net is not None:
+                self._learn(x, y)
+                continue
+            self._first.append((x, y))
+            if len(self._first) == self.window:
+                xs, ys = (np.array(v) for v in zip(*self._first))
+                self.net = Elman(len(FEATURE_NAMES), self.n_hidden, 2, window=self.window, threshold=self.threshold,
+                                 norm=anfis_numpy.fit_normalization(xs, ys), seed=self.seed)
+                self.net.set_aligned()  # samples only come from a converged filter
+                for xi, yi in self._first:
+                    self._learn(xi, yi)
+                self._first = []
+
+    def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:
+        if self.net is None or not self.net.ready or len(self._residuals) < 10:
+            return None
+        std = np.sqrt(np.mean(np.square(self._residuals), axis=0))
+        return self.net.predict(query.features), np.maximum(std, 1e-6)
+
+
+def make_compensator(model: str, target: str = "position", seed: int = 0):
+    """'none' -> None, 'anfis' or 'elman' -> a compensator for the given target variant."""
+    if model == "none":
+        return None
+    if model == "anfis":
+        return AnfisCompensator(target, seed=seed)
+    if model == "elman":
+        return ElmanCompensator(target, seed=seed)
+    raise ValueError(f"unknown compensation model {model!r}; choose from {MODELS}")
