@@ -119,10 +119,9 @@ def quat_to_euler(q) -> np.ndarray:
     return dcm_to_euler(quat_to_dcm(q))
 
 
-def rotvec_to_quat(rv) -> np.ndarray:
-    """Quaternion of the rotation vector rv [rad] (exact; series near zero)."""
-    rv = np.asarray(rv, dtype=float)
-    angle2 = float(rv @ rv)
+def rotvec_quat_xyz(x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """Quaternion of the rotation vector (x, y, z) [rad] on Python floats (exact; series near zero)."""
+    angle2 = x * x + y * y + z * z
     if angle2 < 1e-12:
         c = 1.0 - angle2 / 8.0
         s = 0.5 - angle2 / 48.0
@@ -130,7 +129,12 @@ def rotvec_to_quat(rv) -> np.ndarray:
         angle = math.sqrt(angle2)
         c = math.cos(0.5 * angle)
         s = math.sin(0.5 * angle) / angle
-    return np.array([c, s * rv[0], s * rv[1], s * rv[2]])
+    return c, s * x, s * y, s * z
+
+
+def rotvec_to_quat(rv) -> np.ndarray:
+    """Quaternion of the rotation vector rv [rad]."""
+    return np.array(rotvec_quat_xyz(*(float(v) for v in rv)))
 
 
 def quat_to_rotvec(q) -> np.ndarray:

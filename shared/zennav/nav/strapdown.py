@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import earth
-from .rotation import quat_to_dcm, quat_to_euler
+from .rotation import quat_to_dcm, quat_to_euler, rotvec_quat_xyz
 
 _OMEGA = earth.OMEGA_IE
 _A = earth.A
@@ -71,19 +71,6 @@ class NavState:
     @property
     def euler(self) -> np.ndarray:
         return quat_to_euler(self.q_nb)
-
-
-def _rotvec_quat(x: float, y: float, z: float) -> tuple[float, float, float, float]:
-    """Quaternion of a rotation vector (x, y, z) [rad]."""
-    a2 = x * x + y * y + z * z
-    if a2 < 1e-12:
-        c = 1.0 - a2 / 8.0
-        s = 0.5 - a2 / 48.0
-    else:
-        a = math.sqrt(a2)
-        c = math.cos(0.5 * a)
-        s = math.sin(0.5 * a) / a
-    return c, s * x, s * y, s * z
 
 
 def mechanize(s: NavState, dtheta, dvel, dtheta_prev, dvel_prev, dt: float) -> None:
@@ -153,14 +140,14 @@ def mechanize(s: NavState, dtheta, dvel, dtheta_prev, dvel_prev, dt: float) -> N
     s.vn, s.ve, s.vd = vn1, ve1, vd1
 
     # Attitude: q_nb(k) = q(-zeta) * q_nb(k-1) * q(phi), phi with the two-sample coning term.
-    b0, b1, b2, b3 = _rotvec_quat(
+    b0, b1, b2, b3 = rotvec_quat_xyz(
         ax + (py * az - pz * ay) / 12.0, ay + (pz * ax - px * az) / 12.0, az + (px * ay - py * ax) / 12.0
     )
     r0 = q0 * b0 - q1 * b1 - q2 * b2 - q3 * b3
     r1 = q0 * b1 + q1 * b0 + q2 * b3 - q3 * b2
     r2 = q0 * b2 - q1 * b3 + q2 * b0 + q3 * b1
     r3 = q0 * b3 + q1 * b2 - q2 * b1 + q3 * b0
-    n0, n1, n2, n3 = _rotvec_quat(-zn, -ze, -zd)
+    n0, n1, n2, n3 = rotvec_quat_xyz(-zn, -ze, -zd)
     t0 = n0 * r0 - n1 * r1 - n2 * r2 - n3 * r3
     t1 = n0 * r1 + n1 * r0 + n2 * r3 - n3 * r2
     t2 = n0 * r2 - n1 * r3 + n2 * r0 + n3 * r1
