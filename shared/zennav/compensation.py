@@ -113,3 +113,25 @@ def make_compensator(model: str, target: str = "position", seed: int = 0):
     if model == "elman":
         return ElmanCompensator(target, seed=seed)
     raise ValueError(f"unknown compensation model {model!r}; choose from {MODELS}")
+
+
+def training_set(ds, target: str = "position") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Features (N, 11), targets (N, 2) and times t_ns (N,) of the learning samples the engine emits over
+    the whole of ds with full GNSS (the set the trainer would see)."""
+    from .nav.navigator import Navigator
+    from .replay import run_replay
+
+    if target not in TARGETS:
+        raise ValueError(f"target must be one of {TARGETS}")
+    collected: list[LearnSample] = []
+
+    class _Collector:
+        def add(self, samples):
+            collected.extend(samples)
+
+        def predict(self, query):
+            return None
+
+    run_replay(ds, navigator=Navigator(ds.config.with_(learning=True), ds.initial), compensator=_Collector())
+    return (np.array([s.features for s in collected]), np.array([getattr(s, target) for s in collected]),
+            np.array([s.t_ns for s in collected], dtype=np.int64))

@@ -122,6 +122,7 @@ class Navigator:
                                          config.adaptive_test_probability, config.adaptive_floor,
                                          config.adaptive_ceiling)
                           for src in ("gnss_pos", "gnss_vel")} if config.adaptive_r else {}
+        self._R_used: dict[str, np.ndarray] = {}  # R of the last update per source, adapted or not
         self._lever_b = np.asarray(config.lever_arm_b, dtype=float)
         self._prev_dtheta = (0.0, 0.0, 0.0)
         self._prev_dvel = (0.0, 0.0, 0.0)
@@ -236,7 +237,9 @@ class Navigator:
             "alignment": {"state": self.align_state, "method": self.align_method,
                           "heading_std_rad": float(self.std_att[2]), "times_ns": dict(self.align_times),
                           "tilt_source": self._tilt_source, "gyrocompass": self._gyrocompass_refusal},
-            "adaptive_r": {src: est.status() for src, est in self._adaptive.items()},
+            "adaptive_r": bool(self._adaptive),
+            "measurement_noise": {src: self._adaptive[src].status() if src in self._adaptive else {"R": R.tolist()}
+                                  for src, R in self._R_used.items()},
         }
 
     @property
@@ -390,6 +393,7 @@ class Navigator:
         est = self._adaptive.get(source) if gated else None
         if est is not None:
             R = est.update(z, H @ self.kf.P @ H.T, R)
+        self._R_used[source] = R
         res = self.kf.update(z, H, R, gate)
         reason = ""
         if res.fused:

@@ -233,7 +233,7 @@ class NavConfig:
     align_gyrocompass_s: float = 60.0
     align_gyrocompass_max_std: float = math.radians(10.0)
     align_heading_std: float = math.radians(0.5)
-    adaptive_r: bool = True
+    adaptive_r: bool = False
     adaptive_window: int = 5
     adaptive_forgetting: float = 0.95
     adaptive_test_probability: float = 0.99
