@@ -17,7 +17,7 @@ import numpy as np
 
 from .learn import anfis_numpy
 from .learn.elman import Elman
-from .nav.learning import FEATURE_NAMES, TARGETS, LearnQuery, LearnSample
+from .nav.learning import FEATURES, TARGETS, LearnQuery, LearnSample
 
 MODELS = ("none", "anfis", "elman")
 
@@ -40,9 +40,10 @@ class AnfisCompensator:
 
     def add(self, samples: list[LearnSample]) -> None:
         for s in samples:
-            self._x.append(s.features)
-            self._y.append(getattr(s, self.target))
-        self._stale = self._stale or bool(samples)
+            if s.target == self.target:
+                self._x.append(s.features)
+                self._y.append(s.value)
+                self._stale = True
 
     def _train(self) -> None:
         from .learn.anfis_torch import TrainConfig, fit_anfis  # torch only when training in-process
@@ -55,6 +56,8 @@ class AnfisCompensator:
         self._stale = False
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:
+        if query.target != self.target:
+            return None
         if self._stale and len(self._x) >= self.min_samples:
             self._train()
         if self.model is None:
@@ -83,14 +86,16 @@ class ElmanCompensator:
 
     def add(self, samples: list[LearnSample]) -> None:
         for s in samples:
-            x, y = s.features, getattr(s, self.target)
+            if s.target != self.target:
+                continue
+            x, y = s.features, s.value
             if self.net is not None:
                 self._learn(x, y)
                 continue
             self._first.append((x, y))
             if len(self._first) == self.window:
                 xs, ys = (np.array(v) for v in zip(*self._first))
-                self.net = Elman(len(FEATURE_NAMES), self.n_hidden, 2, window=self.window, threshold=self.threshold,
+                self.net = Elman(len(FEATURES[self.target]), self.n_hidden, 2, window=self.window, threshold=self.threshold,
                                  norm=anfis_numpy.fit_normalization(xs, ys), seed=self.seed)
                 self.net.set_aligned()  # samples only come from a converged filter
                 for xi, yi in self._first:
@@ -98,7 +103,7 @@ class ElmanCompensator:
                 self._first = []
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:
-        if self.net is None or not self.net.ready or len(self._residuals) < 10:
+        if query.target != self.target or self.net is None or not self.net.ready or len(self._residuals) < 10:
             return None
         std = np.sqrt(np.mean(np.square(self._residuals), axis=0))
         return self.net.predict(query.features), np.maximum(std, 1e-6)
@@ -116,8 +121,8 @@ def make_compensator(model: str, target: str = "position", seed: int = 0):
 
 
 def training_set(ds, target: str = "position") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Features (N, 11), targets (N, 2) and times t_ns (N,) of the learning samples the engine emits over
-    the whole of ds with full GNSS (the set the trainer would see)."""
+    """Features (N, n_features), targets (N, 2) and times t_ns (N,) of the learning samples of one target
+    variant that the engine emits over the whole of ds with full GNSS (the set the trainer would see)."""
     from .nav.navigator import Navigator
     from .replay import run_replay
 
@@ -127,11 +132,11 @@ def training_set(ds, target: str = "position") -> tuple[np.ndarray, np.ndarray, 
 
     class _Collector:
         def add(self, samples):
-            collected.extend(samples)
+            collected.extend(s for s in samples if s.target == target)
 
         def predict(self, query):
             return None
 
     run_replay(ds, navigator=Navigator(ds.config.with_(learning=True), ds.initial), compensator=_Collector())
-    return (np.array([s.features for s in collected]), np.array([getattr(s, target) for s in collected]),
+    return (np.array([s.features for s in collected]), np.array([s.value for s in collected]),
             np.array([s.t_ns for s in collected], dtype=np.int64))

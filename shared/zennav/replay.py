@@ -103,7 +103,7 @@ def run_replay(
             for query in nav.pop_queries():
                 prediction = compensator.predict(query)
                 if prediction is not None:
-                    nav.on_correction(query, compensator.target, *prediction)
+                    nav.on_correction(query, *prediction)
         reports.extend(nav.pop_reports())
     wall = time.perf_counter() - wall0
     return ReplayResult(

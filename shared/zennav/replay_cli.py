@@ -69,7 +69,7 @@ _outage_opts = [
     click.option("--json", "as_json", is_flag=True, help="Print metrics.json instead of the table."),
     click.option("--compensation", type=click.Choice(["none", "anfis", "elman"]), default="none", show_default=True,
                  help="Learned INS-error compensation during outages (ANFIS: seed 000, Elman: seed 002)."),
-    click.option("--target", type=click.Choice(["position", "velocity"]), default="position", show_default=True,
+    click.option("--target", type=click.Choice(["position", "velocity", "drift"]), default="position", show_default=True,
                  help="What the model learns: the filter's position corrections (seed 000) or its velocity "
                  "corrections, i.e. increments of INS minus filter (seed 002)."),
     click.option("-v", "--verbose", count=True, help="Log engine events (-v: warnings, -vv: debug)."),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from zennav.compensation import make_compensator
-from zennav.nav.learning import FEATURE_NAMES
+from zennav.nav.learning import DRIFT_FEATURES, RATE_FEATURES
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
 
@@ -39,7 +39,8 @@ def test_elman_predicts_only_under_its_error_threshold(drive):
     assert not [r for r in res.reports if r.source.startswith("learned")]
     comp.threshold = comp.net.threshold = 10.0
     comp._residuals.extend([np.zeros(2)] * 10)
-    assert comp.predict(type("Q", (), {"features": np.zeros(len(FEATURE_NAMES))})()) is not None
+    query = type("Q", (), {"target": "position", "features": np.zeros(len(RATE_FEATURES))})()
+    assert comp.predict(query) is not None
 
 
 def test_samples_only_after_convergence_and_queries_only_without_gnss(drive):
@@ -58,10 +59,20 @@ def test_samples_only_after_convergence_and_queries_only_without_gnss(drive):
         nav.on_imu(t, drive.imu.dtheta[k], drive.imu.dvel[k])
         samples += nav.pop_samples()
         queries += nav.pop_queries()
-    assert samples and queries
+    assert {s.target for s in samples} == {q.target for q in queries} == {"position", "velocity", "drift"}
     assert min(s.t_ns - t0 for s in samples) >= 30e9
     assert all(100e9 < q.t_ns - t0 < 121e9 for q in queries)
     # No samples in the settling time after the outage.
     assert not any(120e9 <= s.t_ns - t0 < 130e9 for s in samples)
-    assert samples[0].features.shape == (len(FEATURE_NAMES),) and samples[0].position.shape == (2,)
-    assert queries[0].dt_s == pytest.approx(0.75, abs=0.02)  # 1.5 GNSS intervals at 2 Hz
+    rate = [q for q in queries if q.target == "position"]
+    assert rate[0].features.shape == (len(RATE_FEATURES),) and samples[0].value.shape == (2,)
+    assert rate[0].dt_s == pytest.approx(0.75, abs=0.02)  # 1.5 GNSS intervals at 2 Hz
+    drift_q = [q for q in queries if q.target == "drift"]
+    assert drift_q[0].features.shape == (len(DRIFT_FEATURES),)
+    taus = [q.features[0] for q in drift_q]  # time since the last fix grows through the outage
+    assert taus == sorted(taus) and taus[-1] > 19.0
+    # Drift samples: the shadow INS error grows with its age (seeded run, MEMS IMU).
+    drift = [s for s in samples if s.target == "drift"]
+    old = [np.hypot(*s.value) for s in drift if s.features[0] > 40.0]
+    young = [np.hypot(*s.value) for s in drift if s.features[0] < 5.0]
+    assert np.median(old) > 5 * np.median(young)

@@ -149,3 +149,14 @@ def test_stationary_imu_drifts_only_as_its_biases_explain():
     predicted, actual = x[:9], runs["biased"]
     assert np.linalg.norm(actual[:3]) > 50.0  # the biases do cause a large drift
     assert np.linalg.norm(actual - predicted) < 0.02 * np.linalg.norm(predicted)
+
+
+def test_schmidt_update_corrects_only_the_chosen_states():
+    rng = np.random.default_rng(6)
+    A = rng.normal(size=(15, 15))
+    kf = ErrorStateKF(A @ A.T + np.eye(15))
+    H = np.zeros((2, 15))
+    H[0, 0] = H[1, 1] = 1.0
+    res = kf.update(np.array([3.0, -2.0]), H, np.eye(2), gate=None, gain_states=slice(0, 3))
+    assert res.fused and np.all(res.dx[3:] == 0.0) and np.any(res.dx[:3] != 0.0)
+    assert np.linalg.eigvalsh(kf.P).min() > 0.0

@@ -115,10 +115,13 @@ class ErrorStateKF:
         P = Phi @ self.P @ Phi.T + Qd
         self.P = 0.5 * (P + P.T)
 
-    def update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, gate: float | None) -> UpdateResult:
+    def update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, gate: float | None,
+               gain_states: slice | None = None) -> UpdateResult:
         """Joseph-form update with measurement z = H x + v, v ~ N(0, R).
 
-        gate: chi-square threshold on d2 (None: always fuse). Rejected updates leave P unchanged."""
+        gate: chi-square threshold on d2 (None: always fuse). Rejected updates leave P unchanged.
+        gain_states: correct only these states (Schmidt "consider" update: the other rows of the gain are zero;
+        the Joseph form keeps P right for any gain)."""
         PHt = self.P @ H.T
         S = H @ PHt + R
         S = 0.5 * (S + S.T)
@@ -128,6 +131,10 @@ class ErrorStateKF:
         if gate is not None and not d2 <= gate:
             return UpdateResult(z, S, d2, ratio, False)
         K = np.linalg.solve(S, PHt.T).T
+        if gain_states is not None:
+            keep = np.zeros(N_STATES, dtype=bool)
+            keep[gain_states] = True
+            K[~keep] = 0.0
         I_KH = np.eye(N_STATES) - K @ H
         P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
         self.P = 0.5 * (P + P.T)

@@ -1,14 +1,20 @@
 """What the navigation engine gives to and takes from the learned INS-error models (DESIGN.md section 5).
 
-While GNSS is valid and the filter has converged, every fused GNSS position update yields a LearnSample:
-    features (11): mean specific force f_b [m/s^2] and mean angular rate omega_ib_b [rad/s] over the interval
-                   since the previous sample (body frame), velocity v_n [m/s] (NED), sin and cos of the yaw;
-    targets, as rates over that interval (so windows of any length compare):
-      "position" (seed 000): the filter's position correction, INS minus filter, N and E [m/s];
-      "velocity" (seed 002: increments of INS minus filter): the velocity correction, N and E [m/s^2].
-While no GNSS is fused, every tick (1.5 GNSS intervals) yields a LearnQuery with the same features; the answer,
-a predicted rate with its 1-sigma, comes back through Navigator.on_correction as a pseudo-measurement of the
-error accrued over the query's interval.
+Three target variants, N and E components each:
+- "position" (seed 000): the filter's position correction at each fused GNSS fix, as a rate over the
+  interval since the previous fix [m/s];
+- "velocity" (seed 002, increments of INS minus filter over one interval): the velocity correction, as a
+  rate [m/s^2];
+- "drift" (seed 002's INS-minus-filter over the outage horizon): free-running shadow INSs are started from
+  the filter every `shadow_every_s` and kept for `horizon_s`, each with the bias estimates frozen at its
+  start, as the INS is during an outage; at fused fixes each yields (shadow position - filter position) [m].
+  This is what a model must predict during an outage, and it grows well above the GNSS noise, unlike the
+  one-interval corrections of the first two variants.
+Rate features (11): mean specific force f_b [m/s^2] and angular rate omega_ib_b [rad/s] over the interval,
+v_n [m/s], sin and cos of the yaw. Drift features (13): time since the start tau [s], mean f_b and omega_ib_b
+since the start, v_n of the free INS, sin and cos of the yaw at the start, yaw change since the start [rad].
+Samples are emitted only after the filter converged; queries only while no GNSS is fused, every 1.5 GNSS
+intervals (rate targets) and every second (drift), with the same features as the samples.
 """
 from __future__ import annotations
 
@@ -17,40 +23,44 @@ from dataclasses import dataclass
 
 import numpy as np
 
-TARGETS = ("position", "velocity")
-FEATURE_NAMES = ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "v_n", "v_e", "v_d", "sin_yaw", "cos_yaw")
+from .earth import radii
+from .rotation import wrap_angle
+from .strapdown import NavState, mechanize
+
+TARGETS = ("position", "velocity", "drift")
+RATE_FEATURES = ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "v_n", "v_e", "v_d", "sin_yaw", "cos_yaw")
+DRIFT_FEATURES = ("tau",) + RATE_FEATURES[:-2] + ("sin_yaw0", "cos_yaw0", "dyaw")
+FEATURES = {"position": RATE_FEATURES, "velocity": RATE_FEATURES, "drift": DRIFT_FEATURES}
 
 
 @dataclass
 class LearnSample:
-    """One training pair: t_ns, features (11,), dt_s, and the target rates per variant (2,) each."""
+    """One training pair of a target variant: features and the target value (2,) (N, E)."""
 
     t_ns: int
+    target: str
     features: np.ndarray
-    dt_s: float
-    position: np.ndarray
-    velocity: np.ndarray
+    value: np.ndarray
 
 
 @dataclass
 class LearnQuery:
-    """A request for a predicted INS-error rate over the interval of dt_s seconds ending at t_ns."""
+    """A request for the predicted value of a target variant; dt_s is the interval of a rate target."""
 
     t_ns: int
+    target: str
     features: np.ndarray
     dt_s: float
 
 
 class FeatureWindow:
-    """Sums of the bias-corrected increments since the last sample or query (cheap per IMU sample)."""
+    """Sums of bias-corrected increments [rad, m/s] and the yaw [rad] at the window start."""
 
-    def __init__(self):
-        self.reset()
-
-    def reset(self) -> None:
+    def __init__(self, yaw0: float = 0.0):
         self.dtheta = [0.0, 0.0, 0.0]
         self.dvel = [0.0, 0.0, 0.0]
         self.dt = 0.0
+        self.yaw0 = yaw0
 
     def add(self, dtheta, dvel, dt: float) -> None:
         a, v = self.dtheta, self.dvel
@@ -62,7 +72,97 @@ class FeatureWindow:
         v[2] += dvel[2]
         self.dt += dt
 
-    def features(self, v_n, yaw: float) -> np.ndarray:
-        dt = self.dt
-        return np.array([*(x / dt for x in self.dvel), *(x / dt for x in self.dtheta), *v_n,
-                         math.sin(yaw), math.cos(yaw)])
+    def means(self) -> list[float]:
+        return [x / self.dt for x in self.dvel] + [x / self.dt for x in self.dtheta]
+
+    def rate_features(self, s: NavState) -> np.ndarray:
+        yaw = s.euler[2]
+        return np.array([*self.means(), s.vn, s.ve, s.vd, math.sin(yaw), math.cos(yaw)])
+
+    def drift_features(self, s: NavState) -> np.ndarray:
+        dyaw = float(wrap_angle(s.euler[2] - self.yaw0))
+        return np.array([self.dt, *self.means(), s.vn, s.ve, s.vd, math.sin(self.yaw0), math.cos(self.yaw0), dyaw])
+
+
+class Shadow:
+    """A free-running INS started from the filter, its biases frozen [rad/s, m/s^2], with its feature window."""
+
+    def __init__(self, t_ns: int, state: NavState, gyro_bias, accel_bias, prev_dtheta, prev_dvel):
+        self.t0_ns, self.state = t_ns, state.copy()
+        self.bg, self.ba = list(gyro_bias), list(accel_bias)
+        self.prev = (prev_dtheta, prev_dvel)
+        self.window = FeatureWindow(state.euler[2])
+        self.last_sample_ns = t_ns
+
+    def advance(self, dtheta_raw, dvel_raw, dt: float) -> None:
+        bg, ba = self.bg, self.ba
+        dth = (dtheta_raw[0] - bg[0] * dt, dtheta_raw[1] - bg[1] * dt, dtheta_raw[2] - bg[2] * dt)
+        dv = (dvel_raw[0] - ba[0] * dt, dvel_raw[1] - ba[1] * dt, dvel_raw[2] - ba[2] * dt)
+        mechanize(self.state, dth, dv, *self.prev, dt)
+        self.prev = (dth, dv)
+        self.window.add(dth, dv, dt)
+
+
+class LearningTap:
+    """The engine's side of the learning loop: windows, shadow INSs, samples and queries (see module docstring).
+
+    horizon_s: longest drift horizon [s]; shadow_every_s: period of shadow starts [s]; sample_every_s: period
+    of drift samples per shadow [s]."""
+
+    def __init__(self, horizon_s: float = 60.0, shadow_every_s: float = 10.0, sample_every_s: float = 1.0):
+        self.horizon_ns = int(horizon_s * 1e9)
+        self.every_ns = int(shadow_every_s * 1e9)
+        self.sample_ns = int(sample_every_s * 1e9)
+        self.rate_window = FeatureWindow()
+        self.since_fix = FeatureWindow()  # the navigator's own free run since the last fused fix
+        self.last_query_ns = 0
+        self.shift_ne = np.zeros(2)  # position shift applied by learned drift corrections since the last fix [m]
+        self.shadows: list[Shadow] = []
+        self.samples: list[LearnSample] = []
+        self.queries: list[LearnQuery] = []
+
+    def on_step(self, dtheta_raw, dvel_raw, dtheta, dvel, dt: float) -> None:
+        """One IMU interval: raw and bias-corrected increments [rad, m/s] over dt [s]."""
+        self.rate_window.add(dtheta, dvel, dt)
+        self.since_fix.add(dtheta, dvel, dt)
+        for sh in self.shadows:
+            sh.advance(dtheta_raw, dvel_raw, dt)
+
+    def on_fix(self, t_ns: int, s: NavState, dx: np.ndarray, converged: bool, gyro_bias, accel_bias,
+               prev_dtheta, prev_dvel) -> None:
+        """A fused GNSS position fix at t_ns; dx: the error-state corrections of this fix; s: the filter state."""
+        win = self.rate_window
+        if converged and win.dt > 0.0:
+            features = win.rate_features(s)
+            self.samples.append(LearnSample(t_ns, "position", features, dx[0:2] / win.dt))
+            self.samples.append(LearnSample(t_ns, "velocity", features, dx[3:5] / win.dt))
+        if converged:
+            for sh in self.shadows:
+                if t_ns - sh.last_sample_ns >= self.sample_ns:
+                    sh.last_sample_ns = t_ns
+                    d = sh.state
+                    self.samples.append(LearnSample(t_ns, "drift", sh.window.drift_features(d), _ne_offset(d, s)))
+        self.shadows = [sh for sh in self.shadows if t_ns - sh.t0_ns < self.horizon_ns] if converged else []
+        if converged and (not self.shadows or t_ns - self.shadows[-1].t0_ns >= self.every_ns):
+            self.shadows.append(Shadow(t_ns, s, gyro_bias, accel_bias, prev_dtheta, prev_dvel))
+        self.rate_window = FeatureWindow()
+        self.since_fix = FeatureWindow(s.euler[2])
+        self.last_query_ns = t_ns
+        self.shift_ne = np.zeros(2)
+
+    def maybe_query(self, t_ns: int, s: NavState, gnss_interval_s: float | None) -> None:
+        """While no fix is fused: a rate query every 1.5 GNSS intervals and a drift query every second."""
+        if gnss_interval_s and self.rate_window.dt >= 1.5 * gnss_interval_s:
+            features = self.rate_window.rate_features(s)
+            for target in ("position", "velocity"):
+                self.queries.append(LearnQuery(t_ns, target, features, self.rate_window.dt))
+            self.rate_window = FeatureWindow()
+        if gnss_interval_s and t_ns - self.last_query_ns >= self.sample_ns and self.since_fix.dt > gnss_interval_s:
+            self.last_query_ns = t_ns
+            self.queries.append(LearnQuery(t_ns, "drift", self.since_fix.drift_features(s), self.since_fix.dt))
+
+
+def _ne_offset(a: NavState, b: NavState) -> np.ndarray:
+    """North and east offset [m] of a from b (small-offset form at b)."""
+    r_m, r_n = radii(b.lat)
+    return np.array([(a.lat - b.lat) * (r_m + b.h), (a.lon - b.lon) * (r_n + b.h) * math.cos(b.lat)])

@@ -35,7 +35,7 @@ from . import earth
 from .adaptive_r import AdaptiveR
 from .aiding import antenna_velocity, position_model, velocity_model
 from .alignment import course_alignment, gyrocompass_refusal, level, levelling_std, static_alignment
-from .learning import TARGETS, FeatureWindow, LearnQuery, LearnSample
+from .learning import TARGETS, LearningTap, LearnQuery, LearnSample
 from .eskf import ATT, BA, BG, N_STATES, POS, VEL, ErrorStateKF, discretize, error_model, process_noise_psd
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_to_quat
 from .strapdown import NavState, mechanize
@@ -131,9 +131,9 @@ class Navigator:
         self._cov_dvel = [0.0, 0.0, 0.0]
         self._pending: list[GnssFix] = []
         self._reports: list[AidReport] = []
-        self._learn = FeatureWindow()
-        self._samples: list[LearnSample] = []
-        self._queries: list[LearnQuery] = []
+        self._tap = LearningTap(config.learn_horizon_s) if config.learning else None
+        self._dx_since_fix = np.zeros(N_STATES)  # corrections of the GNSS fix being fused
+        self._last_dx = np.zeros(N_STATES)
         self._gnss_interval_s: float | None = None  # between the last two fused position fixes
         self._learn_start_t_ns = self.t_ns + int(config.learn_after_s * NS)
         self._last_fix_t_ns = -1
@@ -163,11 +163,8 @@ class Navigator:
             self._fuse_gnss(fix)
         self._advance(t_ns, dtheta, dvel)
         self._check_outage()
-        if self.config.learning and self._gnss_interval_s and self._learn.dt >= 1.5 * self._gnss_interval_s:
-            s = self.state
-            self._queries.append(LearnQuery(self.t_ns, self._learn.features((s.vn, s.ve, s.vd), s.euler[2]),
-                                            self._learn.dt))
-            self._learn.reset()
+        if self._tap is not None:
+            self._tap.maybe_query(self.t_ns, self.state, self._gnss_interval_s)
         return True
 
     def on_gnss(self, fix: GnssFix) -> None:
@@ -190,28 +187,40 @@ class Navigator:
 
     def pop_samples(self) -> list[LearnSample]:
         """Training samples produced since the last call (only with config.learning)."""
-        samples, self._samples = self._samples, []
+        if self._tap is None:
+            return []
+        samples, self._tap.samples = self._tap.samples, []
         return samples
 
     def pop_queries(self) -> list[LearnQuery]:
         """Prediction requests produced since the last call (only with config.learning)."""
-        queries, self._queries = self._queries, []
+        if self._tap is None:
+            return []
+        queries, self._tap.queries = self._tap.queries, []
         return queries
 
-    def on_correction(self, query: LearnQuery, target: str, rate, rate_std) -> bool:
-        """Fuse a learned prediction of the INS error accrued over query's interval as a pseudo-measurement:
-        target "position" (rate in m/s, N and E) or "velocity" (m/s^2, N and E), 1-sigma rate_std alike."""
-        rate, rate_std = np.asarray(rate, dtype=float), np.asarray(rate_std, dtype=float)
-        if target not in TARGETS or rate.shape != (2,) or rate_std.shape != (2,) or not (
-                np.all(np.isfinite(rate)) and np.all(rate_std > 0)):
+    def on_correction(self, query: LearnQuery, value, std) -> bool:
+        """Fuse a learned prediction for a query (nav/learning.py) as a pseudo-measurement of the INS error, N and E:
+        "position" / "velocity": error rates [m/s, m/s^2] accrued over the query's interval; "drift": the error of
+        the free-running INS since the last fix [m], fused into the position alone (a Schmidt update: velocity,
+        attitude and biases stay as they are, as in the shadow INSs the model learned from). std: 1-sigma alike."""
+        value, std = np.asarray(value, dtype=float), np.asarray(std, dtype=float)
+        if self._tap is None or query.target not in TARGETS or value.shape != (2,) or std.shape != (2,) or not (
+                np.all(np.isfinite(value)) and np.all(std > 0)):
             self._count_rejection("correction_malformed", query.t_ns, "")
             return False
         self._propagate_covariance()
         H = np.zeros((2, N_STATES))
-        first = 0 if target == "position" else 3
+        first = 3 if query.target == "velocity" else 0
         H[0, first], H[1, first + 1] = 1.0, 1.0
-        return self._update(f"learned_{target}", query.t_ns, rate, rate * query.dt_s, H,
-                            np.diag(np.square(rate_std * query.dt_s)))
+        if query.target == "drift":
+            fused = self._update("learned_drift", query.t_ns, value, value - self._tap.shift_ne, H,
+                                 np.diag(np.square(std)), gain_states=POS)
+            if fused:
+                self._tap.shift_ne += self._last_dx[0:2]
+            return fused
+        return self._update(f"learned_{query.target}", query.t_ns, value, value * query.dt_s, H,
+                            np.diag(np.square(std * query.dt_s)))
 
     def pop_reports(self) -> list[AidReport]:
         """Aiding reports produced since the last call."""
@@ -256,7 +265,8 @@ class Navigator:
             self._advance_coarse(t_ns, dth, dv, dt)
             return
         mechanize(self.state, dth, dv, self._prev_dtheta, self._prev_dvel, dt)
-        self._learn.add(dth, dv, dt)
+        if self._tap is not None:
+            self._tap.on_step(dtheta, dvel, dth, dv, dt)
         self._prev_dtheta, self._prev_dvel = dth, dv
         self.t_ns = t_ns
         self._cov_dt += dt
@@ -347,20 +357,9 @@ class Navigator:
             self._update("gnss_vel", fix.t_ns, fix_v_n, z, H, R)
         if self.align_state == "fine" and self.std_att[2] < cfg.align_heading_std:
             self._set_align_state("aligned", fix.t_ns, "")
-        if self.config.learning and pos_fused:
-            self._emit_sample(fix.t_ns)
-
-    def _emit_sample(self, t_ns: int) -> None:
-        """Training sample from the corrections of the update just made (see nav/learning.py); the feature
-        window restarts here either way. Only once the filter has converged: learn_after_s after the start,
-        and LEARN_SETTLE_S after an outage or a covariance reset (whose large corrections are not drift)."""
-        win = self._learn
-        if t_ns >= self._learn_start_t_ns and win.dt > 0.0:
-            s = self.state
-            dx = self._dx_since_fix
-            self._samples.append(LearnSample(t_ns, win.features((s.vn, s.ve, s.vd), s.euler[2]), win.dt,
-                                             dx[0:2] / win.dt, dx[3:5] / win.dt))
-        win.reset()
+        if self._tap is not None and pos_fused:
+            self._tap.on_fix(fix.t_ns, self.state, self._dx_since_fix, fix.t_ns >= self._learn_start_t_ns,
+                             self.gyro_bias, self.accel_bias, self._prev_dtheta, self._prev_dvel)
 
     def _gate_trapped(self, t_ns: int) -> bool:
         """True when the current run of rejected position fixes says the INS has left its own uncertainty."""
@@ -388,16 +387,17 @@ class Navigator:
                     t_ns / NS, self._streak_fixes)
 
     def _update(self, source: str, t_ns: int, obs: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray,
-                gated: bool = True) -> bool:
+                gated: bool = True, gain_states: slice | None = None) -> bool:
         gate = self._gate[len(z)] if gated else None
         est = self._adaptive.get(source) if gated else None
         if est is not None:
             R = est.update(z, H @ self.kf.P @ H.T, R)
         self._R_used[source] = R
-        res = self.kf.update(z, H, R, gate)
+        res = self.kf.update(z, H, R, gate, gain_states)
         reason = ""
         if res.fused:
             self._feedback(res.dx)
+            self._last_dx = res.dx
             self._dx_since_fix += res.dx
             self.counters[f"{source}_fused"] += 1
         else:

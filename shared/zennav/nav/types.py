@@ -241,6 +241,7 @@ class NavConfig:
     adaptive_ceiling: float = 400.0
     learning: bool = False  # emit LearnSample / LearnQuery for learned INS-error compensation (nav/learning.py)
     learn_after_s: float = 30.0  # no training samples before this time [s] from the start (filter converging)
+    learn_horizon_s: float = 60.0  # longest outage the "drift" target learns [s] (shadow INS length)
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 
