@@ -3,9 +3,12 @@ from __future__ import annotations
 
 import json
 import logging
+import math
+from dataclasses import replace
 from pathlib import Path
 
 import click
+import numpy as np
 
 from .datasets.errors import DataError
 from .metrics import evaluate, format_table, write_outputs
@@ -35,8 +38,9 @@ def _parse_every(text: str) -> tuple[float, float, float]:
 
 
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
-                   target: str = "position") -> dict:
-    """Load, replay, evaluate, write and print; returns the metrics."""
+                   target: str = "position", heading_unknown: bool = False, adaptive_r: bool | None = None) -> dict:
+    """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
+    initial state without its yaw (alignment); adaptive_r: override NavConfig.adaptive_r (None: keep)."""
     from .compensation import make_compensator
     from .datasets.registry import load_dataset
 
@@ -44,15 +48,33 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds = load_dataset(spec)
     except DataError as e:
         raise click.ClickException(str(e)) from None
+    if heading_unknown:
+        ds.initial = replace(ds.initial, heading_known=False)
+    if adaptive_r is not None:
+        ds.config = ds.config.with_(adaptive_r=adaptive_r)
     res = run_replay(ds, outages=list(outages), outage_every=every, compensator=make_compensator(compensation, target))
     metrics = evaluate(ds, res)
     metrics["compensation"] = {"model": compensation, "target": target if compensation != "none" else None}
     if out is not None:
         write_outputs(out, ds, res, metrics)
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
+    if not as_json and (heading_unknown or adaptive_r is not None):
+        click.echo(_alignment_summary(res.status, int(ds.initial.t_ns)))
     if out is not None and not as_json:
         click.echo(f"wrote {out / 'nav.txt'}, {out / 'nav.csv'}, {out / 'metrics.json'}")
     return metrics
+
+
+def _alignment_summary(status: dict, t0_ns: int) -> str:
+    """Alignment and measurement-noise lines of the engine's final status (times in s from the run start)."""
+    al = status["alignment"]
+    times = ", ".join(f"{k} at {(v - t0_ns) / 1e9:.2f} s" for k, v in al["times_ns"].items())
+    lines = [(f"alignment: {al['state']} ({al['method'] or 'not yet'}; {times}), heading 1-sigma "
+              f"{math.degrees(al['heading_std_rad']):.3f} deg, roll/pitch from {al['tilt_source']}")]
+    for src, r in status["measurement_noise"].items():
+        ratio = "" if "scale_diag" not in r else f", R / reported {[round(x, 2) for x in r['scale_diag']]}"
+        lines.append(f"{src} R diag: {[float(f'{x:.3g}') for x in np.diag(r['R'])]}{ratio}")
+    return "\n".join(lines)
 
 
 _outage_opts = [
@@ -92,8 +114,14 @@ def _setup_logging(verbose: int) -> None:
 @click.option("--kf-gins-config", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="A KF-GINS YAML configuration; its IMU/GNSS files, time window, initial state, IMU noise "
               "and lever arm are used unchanged.")
+@click.option("--heading-unknown", is_flag=True,
+              help="Ignore the dataset's initial yaw: align at rest (gyrocompassing where the gyro allows it) or in "
+              "motion from the GNSS velocity (yaw = course once faster than 3 m/s).")
+@click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,
+              help="Innovation-based adaptive GNSS measurement noise (seed 001); default: the dataset's setting (off).")
 @_with_outage_opts
-def replay(dataset, kf_gins_config, outages, every, out, as_json, compensation, target, verbose):
+def replay(dataset, kf_gins_config, heading_unknown, adaptive_r, outages, every, out, as_json, compensation, target,
+           verbose):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
@@ -103,7 +131,8 @@ def replay(dataset, kf_gins_config, outages, every, out, as_json, compensation, 
     _setup_logging(verbose)
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
-    replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target)
+    replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
+                   heading_unknown, adaptive_r)
 
 
 @click.command()

@@ -68,7 +68,9 @@ class NavSolution:
 @dataclass
 class AidReport:
     """One aiding update: observation, innovation (predicted minus observed), its variance (diagonal of S),
-    test ratio d2/threshold (> 1 fails the gate), fused or not, and the reason when not."""
+    test ratio d2/threshold (> 1 fails the gate), fused or not, and the reason when not: a rejection (gnss_*), or
+    during coarse alignment how the fix was used instead (align_coarse: tracked; align_in_motion /
+    align_gyrocompass: the fix that started the filter)."""
 
     source: str
     t_ns: int
@@ -104,10 +106,12 @@ class Navigator:
         self.config = config
         self.t_ns = int(initial.t_ns)
         self._coarse = not initial.heading_is_known()  # coarse alignment: the per-sample flag of _advance
-        if self._coarse:  # yaw 0 as a placeholder with the 1-sigma of an angle uniform in +-180 deg
-            yaw_uniform_std = math.pi / math.sqrt(3.0)
-            initial = replace(initial, euler=np.array([initial.euler[0], initial.euler[1], 0.0]),
-                              std_euler=np.array([initial.std_euler[0], initial.std_euler[1], yaw_uniform_std]))
+        if self._coarse:  # yaw 0 as a placeholder with the 1-sigma of an angle uniform in +-180 deg; so for an
+            # unknown (non-finite) roll or pitch, which in-motion alignment then takes as 0 / the climb angle
+            known = [math.isfinite(float(a)) for a in initial.euler[:2]]
+            euler = [float(a) if k else 0.0 for a, k in zip(initial.euler[:2], known)] + [0.0]
+            std = [float(e) if k else math.pi / math.sqrt(3.0) for e, k in zip(initial.std_euler[:2], known)]
+            initial = replace(initial, euler=np.array(euler), std_euler=np.array(std + [math.pi / math.sqrt(3.0)]))
         self._initial = initial
         self.state = NavState.from_arrays(initial.llh, initial.v_n, euler_to_quat(initial.euler))
         self.gyro_bias = [float(x) for x in initial.gyro_bias]
@@ -439,13 +443,13 @@ class Navigator:
     def _init_alignment(self, initial: InitialState) -> None:
         cfg = self.config
         self._tilt_std = float(max(initial.std_euler[0], initial.std_euler[1]))  # roll/pitch 1-sigma [rad]
-        self._tilt_source = "initial_state"
+        self._tilt_source = "initial_state" if self._tilt_std < cfg.align_tilt_std else "none"
         self._seg = [0.0] * 7  # angle [rad], velocity [m/s] increments and time [s] since the last fix (coarse)
         self._rest = [0.0] * 7  # the same summed over the current rest period
         self._rest_prev = False  # the last fix was at rest
         self._prev_track: tuple | None = None  # (t_ns, llh, std_ned) of the last fix tracked in coarse alignment
         self._gyrocompass_refusal = gyrocompass_refusal(cfg.imu_noise, float(initial.llh[0]), cfg.align_gyrocompass_s,
-                                                        cfg.align_gyrocompass_max_std)
+                                                        cfg.align_max_heading_std)
         self.align_times: dict[str, int] = {}
         self.align_method = "" if self._coarse else "given"
         if self._coarse:
@@ -530,7 +534,7 @@ class Navigator:
         elif not still:
             self._rest = rest = [0.0] * 7
         self._rest_prev, self._seg = still, [0.0] * 7
-        self._track(fix, omega_ib_b, v)
+        self._track(fix, omega_ib_b, v, std_pos, std_v)
         self._prev_track = (t, fix_llh, std_pos)
         if self.gnss_state != "valid":
             self.counters["outage_recovered"] += 1
@@ -542,22 +546,32 @@ class Navigator:
                 self._set_tilt(*level(f_b), levelling_std(cfg.imu_noise, rest_s), "levelling")
             if rest_s >= cfg.align_gyrocompass_s and not self._gyrocompass_refusal:
                 al = static_alignment(f_b, np.array(rest[0:3]) / rest_s, self.state.lat, rest_s, cfg.imu_noise,
-                                      cfg.align_gyrocompass_max_std)
+                                      cfg.align_max_heading_std)
                 self._start_fine(al.euler, al.std_euler, "gyrocompass", fix, omega_ib_b, v, std_pos, std_v)
                 return
-        if v is not None and math.hypot(v[0], v[1]) >= cfg.align_min_speed_mps:
-            euler, std_euler = course_alignment(v, std_v, cfg.align_course_std, cfg.align_tilt_std)
+        fast = v is not None and math.hypot(v[0], v[1]) >= cfg.align_min_speed_mps
+        euler, std_euler = (course_alignment(v, std_v, cfg.align_course_std, cfg.align_tilt_std) if fast
+                            else (None, None))
+        if fast and std_euler[2] <= cfg.align_max_heading_std:
             if self._tilt_std < cfg.align_tilt_std:  # a better roll and pitch than 0 and the climb angle
                 euler[:2] = quat_to_euler(self.state.q_nb)[:2]
                 std_euler[:2] = self._tilt_std
+            else:
+                self._tilt_source = "climb_angle"
             self._start_fine(euler, std_euler, "in_motion", fix, omega_ib_b, v, std_pos, std_v)
             return
         self.counters["gnss_align_coarse"] += 1
         self._reports.append(AidReport("gnss_pos", t, fix_llh.tolist(), z.tolist(), [], float("nan"), False,
                                        "align_coarse"))
 
-    def _track(self, fix: GnssFix, omega_ib_b: np.ndarray, v_ant_n) -> None:
-        """Coarse alignment: put the antenna at the fix and, when given, its velocity at v_ant_n [m/s]."""
+    def _track(self, fix: GnssFix, omega_ib_b: np.ndarray, v_ant_n, std_pos: np.ndarray, std_v) -> None:
+        """Coarse alignment: put the antenna at the fix and, when given, its velocity at v_ant_n [m/s]; their
+        variances become those of the fix (std_pos [m], std_v [m/s])."""
+        P = self.kf.P
+        P[0:6, :] = 0.0
+        P[:, 0:6] = 0.0
+        P[POS, POS] = np.diag(np.square(std_pos))
+        P[VEL, VEL] = np.diag(np.square(std_v if std_v is not None else self._initial.std_v_n))
         age = (self.t_ns - fix.t_ns) / NS
         v_ins_ant = antenna_velocity(self.state, self._lever_b, omega_ib_b)
         z, _ = position_model(self.state, self._lever_b, np.asarray(fix.llh, dtype=float), v_ins_ant, age)
@@ -572,7 +586,7 @@ class Navigator:
         fix, and a fresh covariance from these 1-sigma values (the bias uncertainty of the initial state)."""
         s = self.state
         s.q0, s.q1, s.q2, s.q3 = (float(x) for x in euler_to_quat(euler))
-        self._track(fix, omega_ib_b, v_ant_n)
+        self._track(fix, omega_ib_b, v_ant_n, std_pos, std_v)
         start = replace(self._initial, t_ns=fix.t_ns, llh=s.llh, v_n=s.v_n, euler=np.asarray(euler, dtype=float),
                         std_pos_ned=std_pos, std_v_n=self._initial.std_v_n if std_v is None else std_v,
                         std_euler=np.asarray(std_euler, dtype=float), heading_known=True)
