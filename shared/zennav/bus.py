@@ -1,0 +1,421 @@
+"""The Zenoh transport of zennav: the only module that imports zenoh.
+
+- ``open_config`` builds a zenoh Config from a file in deploy/ (``zenoh-peer.json5``, ``zenoh-client.json5``,
+  ``zenoh-router.json5``) with endpoint overrides from arguments or the environment
+  (``ZENNAV_ZENOH_CONFIG``, ``ZENNAV_MODE``, ``ZENNAV_CONNECT``, ``ZENNAV_LISTEN``; comma-separated endpoints).
+- ``Bus`` is one session of one service: publishers and subscribers with the stream's QoS from
+  ``zennav.messages``, a liveliness token ``zennav/@v1/<vehicle>/@alive/<service>``, liveliness watching,
+  queryables serving the latest value of a stream, queries for late joiners, and clean shutdown.
+
+Threading: every subscription receives into a zenoh channel (``fifo``: bounded and lossless, a full queue
+back-pressures the sender through reliable/blocking transport; ``ring``: keeps the newest) and one worker
+thread per subscription drains it, decodes, validates and calls the service's callback. No Python code runs
+in zenoh's network threads except the latest-value queryables, which only reply with cached bytes. With
+``serial=True`` (default) the callbacks of one Bus never run concurrently (one lock), so services need no
+locking of their own.
+"""
+from __future__ import annotations
+
+import atexit
+import logging
+import os
+import threading
+import time
+import uuid
+from collections import Counter
+from pathlib import Path
+from typing import Callable, Iterable
+
+import zenoh
+
+from . import messages as M
+
+log = logging.getLogger("zennav.bus")
+
+DEPLOY_DIR = Path(__file__).resolve().parents[2] / "deploy"
+CONFIG_FILES = {"peer": "zenoh-peer.json5", "client": "zenoh-client.json5", "router": "zenoh-router.json5"}
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+_PRIORITY = {n: getattr(zenoh.Priority, n) for n in ("REAL_TIME", "INTERACTIVE_HIGH", "INTERACTIVE_LOW", "DATA_HIGH", "DATA", "DATA_LOW", "BACKGROUND")}
+_CONGESTION = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionControl.DROP}
+_RELIABILITY = {"reliable": zenoh.Reliability.RELIABLE, "best_effort": zenoh.Reliability.BEST_EFFORT}
+_ENCODING = zenoh.Encoding(M.ENCODING)
+
+_log_inited = False
+
+
+def _init_zenoh_log() -> None:
+    global _log_inited
+    if not _log_inited:
+        zenoh.init_log_from_env_or("error")
+        _log_inited = True
+
+
+def _split(v) -> list[str] | None:
+    if v is None:
+        return None
+    if isinstance(v, str):
+        return [e.strip() for e in v.split(",") if e.strip()]
+    return [str(e) for e in v]
+
+
+def config_path(mode: str | None = None, config_file: str | os.PathLike | None = None) -> Path | None:
+    """The config file to use: explicit > ZENNAV_ZENOH_CONFIG > deploy/zenoh-<mode>.json5 (None if absent)."""
+    path = config_file or os.environ.get("ZENNAV_ZENOH_CONFIG")
+    if path:
+        return Path(path)
+    p = DEPLOY_DIR / CONFIG_FILES.get(mode or "peer", CONFIG_FILES["peer"])
+    return p if p.exists() else None
+
+
+def open_config(mode: str | None = None, config_file=None, connect=None, listen=None) -> zenoh.Config:
+    """zenoh Config from a deploy/ file, then mode/endpoint overrides (arguments win over the environment)."""
+    mode = mode or os.environ.get("ZENNAV_MODE") or None
+    path = config_path(mode, config_file)
+    if path is not None:
+        conf = zenoh.Config.from_file(str(path))
+    else:  # installed without deploy/: the same defaults as deploy/zenoh-peer.json5
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("connect/endpoints", f'["{DEFAULT_ENDPOINT}"]')
+        conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    if mode:
+        conf.insert_json5("mode", f'"{mode}"')
+    connect = _split(connect if connect is not None else os.environ.get("ZENNAV_CONNECT"))
+    listen = _split(listen if listen is not None else os.environ.get("ZENNAV_LISTEN"))
+    if connect is not None:
+        conf.insert_json5("connect/endpoints", _json_list(connect))
+    if listen is not None:
+        conf.insert_json5("listen/endpoints", _json_list(listen))
+    return conf
+
+
+def _json_list(items: Iterable[str]) -> str:
+    return "[" + ",".join(f'"{e}"' for e in items) + "]"
+
+
+class Publisher:
+    """Publishes message maps on one key with the stream's QoS; stamps src, seq and pub_ns; optionally keeps
+    the last payload and serves it to queries (late joiners)."""
+
+    def __init__(self, bus: "Bus", key: str, qos: M.QoS | None = None, latest: bool | None = None):
+        self.bus = bus
+        self.key = key
+        self.qos = qos or M.qos_of(key)
+        self._pub = bus.session.declare_publisher(
+            key, encoding=_ENCODING, congestion_control=_CONGESTION[self.qos.congestion],
+            priority=_PRIORITY[self.qos.priority], express=self.qos.express,
+            reliability=_RELIABILITY[self.qos.reliability])
+        self.seq = 0
+        self.latest: bytes | None = None
+        self._queryable = None
+        if self.qos.latest if latest is None else latest:
+            self._queryable = bus.session.declare_queryable(key, self._on_query, complete=True)
+
+    def put(self, msg: dict) -> bytes:
+        """Stamp the header (src, seq, pub_ns), encode and publish; returns the payload."""
+        msg["src"] = self.bus.src
+        msg["seq"] = self.seq
+        msg["pub_ns"] = time.time_ns()
+        payload = M.encode(msg)
+        self._pub.put(payload)
+        self.seq += 1
+        if self._queryable is not None:
+            self.latest = payload
+        return payload
+
+    def put_raw(self, payload: bytes) -> None:
+        """Publish bytes as they are (bus replay, tests injecting bad payloads)."""
+        self._pub.put(payload)
+        if self._queryable is not None:
+            self.latest = payload
+
+    @property
+    def matching(self) -> bool:
+        return bool(self._pub.matching_status)
+
+    def _on_query(self, query) -> None:  # zenoh thread: reply with cached bytes only
+        payload = self.latest
+        if payload is not None:
+            try:
+                query.reply(self.key, payload, encoding=_ENCODING)
+            except Exception:  # query may be gone
+                pass
+
+    def close(self) -> None:
+        for obj in (self._queryable, self._pub):
+            if obj is not None:
+                try:
+                    obj.undeclare()
+                except Exception:
+                    pass
+
+
+class Subscription:
+    """A zenoh subscriber draining into a worker thread (see the module docstring)."""
+
+    def __init__(self, bus: "Bus", keyexpr: str, callback: Callable, *, validate: bool, channel: str,
+                 capacity: int, name: str):
+        self.bus = bus
+        self.keyexpr = keyexpr
+        self.callback = callback
+        self.validate = validate
+        self.validator = M.Validator()
+        self.received = 0
+        handler = zenoh.handlers.FifoChannel(capacity) if channel == "fifo" else zenoh.handlers.RingChannel(capacity)
+        self._sub = bus.session.declare_subscriber(keyexpr, handler)
+        self._handler = self._sub.handler
+        self._thread = threading.Thread(target=self._run, name=f"zennav-sub-{name}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        h = self._handler
+        lock = self.bus._cb_lock
+        cb = self.callback
+        validate = self.validate
+        check = self.validator.check
+        put_kind = zenoh.SampleKind.PUT
+        while True:
+            try:
+                sample = h.recv()
+            except Exception:  # channel closed: subscriber undeclared or session closed
+                return
+            recv_ns = time.time_ns()
+            if sample.kind != put_kind:
+                continue
+            key = str(sample.key_expr)
+            payload = sample.payload.to_bytes()
+            self.received += 1
+            if validate:
+                value, reason = check(key, payload)
+                if value is None:
+                    self.bus._rejected(key, reason)
+                    continue
+            else:
+                value = payload
+            try:
+                if lock is not None:
+                    with lock:
+                        cb(key, value, recv_ns)
+                else:
+                    cb(key, value, recv_ns)
+            except Exception:
+                self.bus.errors["callback"] += 1
+                log.exception("callback for %s failed", key)
+
+    def close(self, join_timeout: float = 2.0) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:
+            pass
+        if threading.current_thread() is not self._thread:
+            self._thread.join(join_timeout)
+
+
+class Bus:
+    """One zenoh session of one service (see the module docstring).
+
+    service: name used for the liveliness token and the status key; vehicle: the key-space vehicle;
+    mode/config/connect/listen: see open_config; token: declare the liveliness token now.
+    """
+
+    def __init__(self, service: str, vehicle: str | None = None, *, mode: str | None = None, config=None,
+                 connect=None, listen=None, token: bool = True, serial: bool = True):
+        _init_zenoh_log()
+        self.service = M.check_chunk(service, "service")
+        self.keys = M.Keys(vehicle or os.environ.get("ZENNAV_VEHICLE") or "car")
+        self.session = zenoh.open(open_config(mode, config, connect, listen))
+        self.zid = str(self.session.zid())
+        self.src = f"{service}.{self.zid[:12]}.{uuid.uuid4().hex[:6]}"
+        self._cb_lock = threading.RLock() if serial else None
+        self._subs: list[Subscription] = []
+        self._pubs: dict[str, Publisher] = {}
+        self._others: list = []
+        self.rejected: Counter[str] = Counter()
+        self.rejected_by_key: Counter[tuple[str, str]] = Counter()
+        self.errors: Counter[str] = Counter()
+        self._rej_lock = threading.Lock()
+        self._token = None
+        self._alive: set[str] = set()
+        self._alive_cv = threading.Condition()
+        self._alive_watch = None
+        self._alive_listeners: list[Callable[[str, bool], None]] = []
+        self._closed = False
+        self._status_pub: Publisher | None = None
+        if token:
+            self.announce()
+        atexit.register(self.close)
+
+    # ------------------------------------------------------------------ publish / subscribe
+    def publisher(self, key: str, qos: M.QoS | None = None, latest: bool | None = None) -> Publisher:
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = Publisher(self, key, qos, latest)
+        return pub
+
+    def subscribe(self, keyexpr: str, callback: Callable[[str, object, int], None], *, validate: bool = True,
+                  channel: str | None = None, capacity: int = 4096, name: str | None = None) -> Subscription:
+        """callback(key, msg_or_bytes, recv_ns) runs on the subscription's worker thread; with validate=True
+        it gets validated message maps (rejections are counted in ``rejected`` and logged), else raw bytes.
+        channel defaults to the stream's QoS ("fifo" for exact keys of lossless streams, "ring" otherwise)."""
+        if channel is None:
+            st = M.stream_of(keyexpr)
+            channel = st.qos.channel if st is not None else "ring"
+        sub = Subscription(self, keyexpr, callback, validate=validate, channel=channel, capacity=capacity,
+                           name=name or keyexpr.rsplit("/", 1)[-1])
+        self._subs.append(sub)
+        return sub
+
+    def _rejected(self, key: str, reason: str) -> None:
+        code = reason.split(":", 1)[0]
+        with self._rej_lock:
+            self.rejected[code] += 1
+            self.rejected_by_key[(key, code)] += 1
+            n = self.rejected[code]
+        if n <= 5 or n % 1000 == 0:
+            log.warning("rejected message on %s (#%d %s): %s", key, n, code, reason)
+
+    def rejected_counts(self) -> dict[str, int]:
+        """A copy of the rejection counters (reason code -> count), safe from any thread."""
+        with self._rej_lock:
+            return dict(self.rejected)
+
+    def get(self, selector: str, timeout: float = 2.0) -> list[tuple[str, bytes]]:
+        """Query queryables (latest values) matching selector; returns (key, payload) of each reply."""
+        out = []
+        for reply in self.session.get(selector, timeout=timeout):
+            ok = reply.ok
+            if ok is not None:
+                out.append((str(ok.key_expr), ok.payload.to_bytes()))
+        return out
+
+    def get_latest(self, selector: str, timeout: float = 2.0) -> list[tuple[str, dict]]:
+        """Query and validate (key, message) pairs; invalid replies are counted and skipped."""
+        v = M.Validator()
+        out = []
+        for key, payload in self.get(selector, timeout):
+            msg, reason = v.check(key, payload)
+            if msg is None:
+                self._rejected(key, reason)
+            else:
+                out.append((key, msg))
+        return out
+
+    # ------------------------------------------------------------------ status / liveliness
+    def announce(self) -> None:
+        if self._token is None:
+            self._token = self.session.liveliness().declare_token(self.keys.alive(self.service))
+
+    def publish_status(self, state: str, detail: str = "", counters=None) -> None:
+        """Publish this service's heartbeat/status (latest value served to late joiners)."""
+        if self._status_pub is None:
+            self._status_pub = self.publisher(self.keys.svc_status(self.service))
+        with self._rej_lock:
+            rejected = dict(self.rejected)
+        c = dict(counters or {})
+        if self.errors:
+            c.update({f"error_{k}": v for k, v in self.errors.items()})
+        self._status_pub.put(M.service_status_msg(self.service, state, detail, c, rejected))
+
+    def watch_alive(self, listener: Callable[[str, bool], None] | None = None) -> None:
+        """Track the services alive on this vehicle (liveliness tokens); listener(service, alive) is called
+        on changes, from the watcher thread."""
+        if listener is not None:
+            self._alive_listeners.append(listener)
+            with self._alive_cv:
+                for s in sorted(self._alive):
+                    listener(s, True)
+        if self._alive_watch is not None:
+            return
+        sub = self.session.liveliness().declare_subscriber(
+            self.keys.alive(), zenoh.handlers.FifoChannel(1024), history=True)
+        handler = sub.handler
+
+        def run():
+            put_kind = zenoh.SampleKind.PUT
+            while True:
+                try:
+                    sample = handler.recv()
+                except Exception:
+                    return
+                svc = str(sample.key_expr).rsplit("/", 1)[-1]
+                alive = sample.kind == put_kind
+                with self._alive_cv:
+                    if alive:
+                        self._alive.add(svc)
+                    else:
+                        self._alive.discard(svc)
+                    self._alive_cv.notify_all()
+                for fn in list(self._alive_listeners):
+                    try:
+                        fn(svc, alive)
+                    except Exception:
+                        log.exception("liveliness listener failed")
+
+        t = threading.Thread(target=run, name="zennav-alive", daemon=True)
+        t.start()
+        self._alive_watch = (sub, t)
+
+    def alive(self) -> set[str]:
+        self.watch_alive()
+        with self._alive_cv:
+            return set(self._alive)
+
+    def wait_alive(self, services: Iterable[str], timeout: float | None = 30.0, alive: bool = True) -> bool:
+        """Block until every named service is alive (or, alive=False, gone); False on timeout."""
+        self.watch_alive()
+        want = set(services)
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._alive_cv:
+            while True:
+                ok = want <= self._alive if alive else not (want & self._alive)
+                if ok:
+                    return True
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    return False
+                self._alive_cv.wait(left if left is None else min(left, 1.0))
+
+    # ------------------------------------------------------------------ info / shutdown
+    def peers(self) -> list[str]:
+        return [str(z) for z in self.session.info.peers_zid()]
+
+    def routers(self) -> list[str]:
+        return [str(z) for z in self.session.info.routers_zid()]
+
+    def close(self) -> None:
+        """Undeclare everything, stop the workers and close the session (idempotent, never hangs)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._token is not None:
+            try:
+                self._token.undeclare()
+            except Exception:
+                pass
+        for sub in self._subs:
+            sub.close()
+        if self._alive_watch is not None:
+            sub, t = self._alive_watch
+            try:
+                sub.undeclare()
+            except Exception:
+                pass
+            if threading.current_thread() is not t:
+                t.join(2.0)
+        for pub in self._pubs.values():
+            pub.close()
+        try:
+            self.session.close()
+        except Exception:
+            pass
+        try:
+            atexit.unregister(self.close)
+        except Exception:
+            pass
+
+    def __enter__(self) -> "Bus":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

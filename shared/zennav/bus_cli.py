@@ -1,0 +1,204 @@
+"""`zennav` subcommands of the transport layer: router, launch, monitor, record, bus-replay.
+
+Bus options (every command): --vehicle, --mode, --zenoh-config, --connect, --listen (or the ZENNAV_*
+environment variables; see zennav.bus).
+"""
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+
+import click
+
+from .service import wait_event
+
+_PASS = dict(ignore_unknown_options=True, allow_extra_args=True, help_option_names=[])
+
+
+def _bus_options(f):
+    f = click.option("--listen", default=None, help="comma-separated endpoints to listen on")(f)
+    f = click.option("--connect", default=None, help="comma-separated endpoints to connect to")(f)
+    f = click.option("--zenoh-config", default=None, help="zenoh json5 config file")(f)
+    f = click.option("--mode", type=click.Choice(["peer", "client", "router"]), default=None)(f)
+    f = click.option("--vehicle", default=None, envvar="ZENNAV_VEHICLE", help="key-space vehicle [car]")(f)
+    return f
+
+
+def _stop_event() -> threading.Event:
+    ev = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: ev.set())
+    return ev
+
+
+@click.command("router")
+@click.option("--listen", default=None, help="endpoints, default deploy/zenoh-router.json5 (tcp/127.0.0.1:7447)")
+@click.option("--connect", default=None, help="other routers to connect to")
+@click.option("--zenoh-config", default=None, help="router config (default deploy/zenoh-router.json5)")
+@click.option("--vehicle", default=None, envvar="ZENNAV_VEHICLE")
+def router_cmd(listen, connect, zenoh_config, vehicle):
+    """Run a Zenoh router (a zenoh session in router mode): the rendezvous of the peers on one host and the
+    hub that clients on other hosts connect to. Announces liveliness as service 'router'."""
+    from .bus import Bus
+    from .service import setup_logging
+
+    setup_logging("INFO")
+    bus = Bus("router", vehicle, mode="router", config=zenoh_config, listen=listen, connect=connect or "")
+    ev = _stop_event()
+    click.echo(f"zennav router {bus.zid} listening on {listen or 'deploy/zenoh-router.json5 endpoints'}", err=True)
+    try:
+        last = None
+        while not wait_event(ev, 5.0):
+            peers = (len(bus.peers()), len(bus.routers()))
+            if peers != last:
+                click.echo(f"router: {peers[0]} peers, {peers[1]} routers connected", err=True)
+                last = peers
+    finally:
+        bus.close()
+        click.echo("router stopped", err=True)
+
+
+@click.command("launch")
+@click.argument("launch_file", type=click.Path(exists=True, dir_okay=False))
+@click.option("--rendezvous", default=None, help="override the file's rendezvous endpoint")
+@click.option("--vehicle", default=None, help="override the file's vehicle")
+@click.option("--until", default=None, help="stop everything once this service exits (e.g. ingest)")
+def launch_cmd(launch_file, rendezvous, vehicle, until):
+    """Start the process set described in LAUNCH_FILE (deploy/local.yaml, deploy/edge.yaml), wait on
+    liveliness until all are up, prefix each log line with the service name, restart per policy, stop all
+    cleanly on Ctrl-C."""
+    from .launch import launch_main
+
+    sys.exit(launch_main(launch_file, rendezvous, vehicle, until))
+
+
+@click.command("monitor", context_settings=_PASS)
+@click.pass_context
+def monitor_cmd(ctx):
+    """Live per-key rate, lag, drops and rejections; services alive, GNSS state, test ratios, model version.
+    Options: --json, --once, --duration S, --interval S, plus the bus options (see zennav-monitor --help)."""
+    from zennav.services.monitor import main
+
+    sys.exit(main(list(ctx.args)))
+
+
+@click.command("record")
+@click.argument("output", type=click.Path(dir_okay=False))
+@click.option("-k", "--key", "keys", multiple=True, help="key expression(s) to record [zennav/@v1/<vehicle>/**]")
+@click.option("--encoding", type=click.Choice(["json", "msgpack"]), default="json",
+              help="json: Foxglove-readable with JSON schemas; msgpack: the raw payloads")
+@click.option("--duration", type=float, default=None, help="stop after this many seconds")
+@click.option("--until-stream-end", is_flag=True,
+              help="stop once the ins acknowledged a stream end and all its solutions are recorded")
+@click.option("--count", type=int, default=None, help="stop after this many messages")
+@_bus_options
+def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicle, mode, zenoh_config, connect,
+               listen):
+    """Record every sample on the chosen keys to an MCAP file (Foxglove-openable)."""
+    from . import messages as M
+    from .bus import Bus
+    from .recording import McapRecorder
+    from .service import setup_logging
+
+    setup_logging("INFO")
+    bus = Bus("record", vehicle, mode=mode, config=zenoh_config, connect=connect, listen=listen, token=False)
+    rec = McapRecorder(output, encoding)
+    ev = _stop_event()
+    done = {"solutions_expected": None}
+    sol_key = bus.keys.nav_solution()
+
+    def on_sample(key, payload, recv_ns):
+        rec.add(key, payload, recv_ns)
+        if count is not None and rec.count >= count:
+            ev.set()
+        if until_stream_end:
+            if key == bus.keys.nav_status():
+                try:
+                    st = M.decode(payload).get("stream", {})
+                    if st.get("done"):
+                        done["solutions_expected"] = st.get("solutions")
+                except Exception:
+                    pass
+            exp = done["solutions_expected"]
+            if exp is not None and rec.per_key.get(sol_key, 0) >= exp:
+                ev.set()
+
+    for k in keys or [bus.keys.all()]:
+        bus.subscribe(k, on_sample, validate=False, channel="fifo", capacity=65536, name="record")
+    bus.announce()
+    click.echo(f"recording {', '.join(keys or [bus.keys.all()])} to {output} ({encoding})", err=True)
+    t0 = time.monotonic()
+    try:
+        wait_event(ev, duration)
+    finally:
+        bus.close()
+        rec.close()
+    click.echo(f"recorded {rec.count} messages on {len(rec.per_key)} keys in {time.monotonic() - t0:.1f} s "
+               f"to {output}" + (f" ({rec.skipped} invalid payloads not recorded)" if rec.skipped else ""),
+               err=True)
+
+
+@click.command("bus-replay")
+@click.argument("recording", type=click.Path(exists=True, dir_okay=False))
+@click.option("-k", "--key", "keys", multiple=True,
+              help="key patterns to publish ('*' one chunk, '**' any) [zennav/@v1/*/sensor/**]")
+@click.option("--speed", default="1", help="1 original timing, N times faster, 0/max as fast as possible")
+@click.option("--wait-for", default="ins", help="comma-separated services to wait for before publishing")
+@click.option("--wait-timeout", type=float, default=60.0)
+@click.option("--raw", is_flag=True, help="republish msgpack payloads as recorded (no header restamp)")
+@_bus_options
+def bus_replay_cmd(recording, keys, speed, wait_for, wait_timeout, raw, vehicle, mode, zenoh_config, connect,
+                   listen):
+    """Publish an MCAP recording back onto the bus with its original timing or faster."""
+    from .bus import Bus
+    from .recording import replay
+    from .service import setup_logging
+
+    setup_logging("INFO")
+    sp = 0.0 if str(speed).lower() in ("0", "max", "inf") else float(speed)
+    bus = Bus("replay", vehicle, mode=mode, config=zenoh_config, connect=connect, listen=listen)
+    ev = _stop_event()
+    try:
+        waits = [w for w in wait_for.split(",") if w]
+        if waits and not bus.wait_alive(waits, wait_timeout):
+            click.echo(f"gave up waiting for {waits}", err=True)
+            sys.exit(2)
+        pats = list(keys) or ["zennav/@v1/*/sensor/**"]
+        # declare the publishers first and let the subscribers match them
+        from .recording import glob_to_regex, read_mcap
+
+        for key, _m, _p, _t in read_mcap(recording, [glob_to_regex(k) for k in pats]):
+            if vehicle:
+                parts = key.split("/", 3)
+                key = f"{parts[0]}/{parts[1]}/{vehicle}/{parts[3]}"
+            bus.publisher(key)
+        deadline = time.monotonic() + wait_timeout
+        while waits and not all(p.matching for p in bus._pubs.values()) and time.monotonic() < deadline:
+            if ev.wait(0.01):
+                break
+        t0 = time.monotonic()
+        counts = replay(bus, recording, pats, sp, vehicle, ev, raw)
+        click.echo(f"replayed {sum(counts.values())} messages on {len(counts)} keys in "
+                   f"{time.monotonic() - t0:.2f} s", err=True)
+        if "ins" in waits:
+            _wait_ins_done(bus, ev, wait_timeout)
+    finally:
+        bus.close()
+
+
+def _wait_ins_done(bus, ev, timeout) -> None:
+    """Keep the session open until the ins acknowledged the replayed stream's end (closing earlier could drop
+    messages still queued), or timeout."""
+    done = threading.Event()
+
+    def on_status(key, msg, recv_ns):
+        st = msg.get("stream") or {}
+        if st.get("src") == bus.src and st.get("done"):
+            done.set()
+
+    bus.subscribe(bus.keys.nav_status(), on_status, channel="ring")
+    deadline = time.monotonic() + timeout
+    while not done.wait(0.1) and not ev.is_set() and time.monotonic() < deadline:
+        pass

@@ -1,0 +1,156 @@
+"""What every zennav service process shares: command-line options for the bus, logging, signal handling,
+the heartbeat (``svc/<service>/status`` once a second) and a clean stop. No zenoh here (see zennav.bus).
+
+A service's ``main(argv=None)`` builds an ``argparse`` parser with ``add_bus_args``, creates a
+``ServiceRunner`` (which opens the Bus *without* the liveliness token), declares its subscribers and
+publishers, then calls ``runner.ready()`` (token + "running" status: the service is up only once it can
+receive) and ``runner.wait()`` until SIGINT/SIGTERM or ``runner.stop()``.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Callable
+
+log = logging.getLogger("zennav.service")
+
+LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(name)s: %(message)s"
+
+
+def add_bus_args(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    g = p.add_argument_group("bus (zenoh)")
+    g.add_argument("--vehicle", default=os.environ.get("ZENNAV_VEHICLE", "car"), help="key-space vehicle name")
+    g.add_argument("--mode", choices=("peer", "client", "router"), default=None,
+                   help="zenoh mode (default: ZENNAV_MODE, else the config file's, peer)")
+    g.add_argument("--zenoh-config", default=None, help="zenoh json5 config (default deploy/zenoh-<mode>.json5)")
+    g.add_argument("--connect", default=None, help="comma-separated endpoints to connect, e.g. tcp/127.0.0.1:7447")
+    g.add_argument("--listen", default=None, help="comma-separated endpoints to listen on")
+    g.add_argument("--name", default=None, help="service name for liveliness/status (default: the service)")
+    g.add_argument("--log-level", default=os.environ.get("ZENNAV_LOG", "INFO"))
+    g.add_argument("--status-period", type=float, default=1.0, help="heartbeat period [s]")
+    return p
+
+
+def setup_logging(level: str = "INFO") -> None:
+    root = logging.getLogger()
+    if not root.handlers:
+        h = logging.StreamHandler(sys.stderr)
+        h.setFormatter(logging.Formatter(LOG_FORMAT, "%H:%M:%S"))
+        root.addHandler(h)
+    root.setLevel(getattr(logging, str(level).upper(), logging.INFO))
+
+
+class ServiceRunner:
+    """Bus + lifecycle of one service process."""
+
+    def __init__(self, service: str, args: argparse.Namespace, *, serial: bool = True):
+        from .bus import Bus
+
+        setup_logging(args.log_level)
+        self.name = args.name or service
+        self.log = logging.getLogger(f"zennav.{self.name}")
+        self.bus = Bus(self.name, args.vehicle, mode=args.mode, config=args.zenoh_config, connect=args.connect,
+                       listen=args.listen, token=False, serial=serial)
+        self.keys = self.bus.keys
+        self.state = "starting"
+        self.detail = ""
+        self.counters: Callable[[], dict] = dict
+        self._stop = threading.Event()
+        self._period = args.status_period
+        self._hb: threading.Thread | None = None
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum, frame) -> None:
+        self.log.info("%s received, stopping", signal.Signals(signum).name)
+        self._stop.set()
+
+    def ready(self, state: str = "running", detail: str = "") -> None:
+        """Declare the liveliness token and start the heartbeat: call after the subscriptions exist."""
+        self.state, self.detail = state, detail
+        self.bus.announce()
+        self.heartbeat()
+        self._hb = threading.Thread(target=self._heartbeat_loop, name="zennav-heartbeat", daemon=True)
+        self._hb.start()
+        self.log.info("%s up (%s%s) on vehicle %s, zid %s", self.name, state, f": {detail}" if detail else "",
+                      self.keys.vehicle, self.bus.zid)
+
+    def set_state(self, state: str, detail: str = "") -> None:
+        self.state, self.detail = state, detail
+        self.heartbeat()
+
+    def heartbeat(self) -> None:
+        try:
+            self.bus.publish_status(self.state, self.detail, self.counters())
+        except Exception:
+            self.log.exception("status publish failed")
+
+    def _heartbeat_loop(self) -> None:
+        while not self._stop.wait(self._period):
+            self.heartbeat()
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until stopped (signal or stop()); True if stopped."""
+        return wait_event(self._stop, timeout)
+
+    def close(self) -> None:
+        self._stop.set()
+        try:
+            self.state = "stopping"
+            self.heartbeat()
+        except Exception:
+            pass
+        self.bus.close()
+        self.log.info("%s stopped", self.name)
+
+
+def not_implemented_main(service: str, reason: str, argv=None, subscribe: list[str] | None = None) -> int:
+    """A service whose core has not landed: it starts, announces liveliness, publishes state
+    'not_implemented' with the reason and logs it, and processes nothing. It never pretends."""
+    p = add_bus_args(argparse.ArgumentParser(prog=f"zennav-{service}", description=f"zennav {service} service"))
+    args, _unknown = p.parse_known_args(argv)
+    run = ServiceRunner(service, args)
+    seen = {"messages_ignored": 0}
+
+    def ignore(key, msg, recv_ns):
+        seen["messages_ignored"] += 1
+
+    for k in subscribe or []:
+        run.bus.subscribe(k.format(base=run.keys.base), ignore, channel="ring")
+    run.counters = lambda: dict(seen)
+    run.ready("not_implemented", reason)
+    run.log.warning("%s is NOT IMPLEMENTED: %s", service, reason)
+    try:
+        run.wait()
+    finally:
+        run.close()
+    return 0
+
+
+def wall_ns() -> int:
+    return time.time_ns()
+
+
+def wait_event(ev: threading.Event, timeout: float | None = None, tick: float = 0.2) -> bool:
+    """Event.wait in short slices: a signal delivered to one of zenoh's threads does not interrupt the main
+    thread's wait, so the Python handler (which sets ``ev``) only runs when the main thread wakes up."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while True:
+        left = tick if deadline is None else min(tick, deadline - time.monotonic())
+        if left <= 0:
+            return ev.is_set()
+        if ev.wait(left):
+            return True
