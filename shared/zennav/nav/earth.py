@@ -36,13 +36,16 @@ def radii(lat: float) -> tuple[float, float]:
     return A * (1.0 - E2) / (w * w * w), A / w
 
 
+def gravity_sin2(s2, h):
+    """Normal gravity [m/s^2] from sin^2(latitude) s2 and height h [m]; floats or arrays."""
+    g_surface = GAMMA_E * (1.0 + _K_SOMIGLIANA * s2) / (1.0 - E2 * s2) ** 0.5
+    return g_surface * (1.0 - 2.0 / A * (1.0 + F + _M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * h * h)
+
+
 def gravity(lat: float, h: float) -> float:
     """Magnitude of normal gravity [m/s^2] at geodetic latitude lat [rad] and height h [m]; points down in n.
     lat, h scalars or arrays."""
-    xp = _xp(lat)
-    s2 = xp.sin(lat) ** 2
-    g_surface = GAMMA_E * (1.0 + _K_SOMIGLIANA * s2) / xp.sqrt(1.0 - E2 * s2)
-    return g_surface * (1.0 - 2.0 / A * (1.0 + F + _M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * h * h)
+    return gravity_sin2(_xp(lat).sin(lat) ** 2, h)
 
 
 def omega_ie_n(lat: float) -> np.ndarray:

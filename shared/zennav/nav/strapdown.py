@@ -96,7 +96,7 @@ def mechanize(s: NavState, dtheta, dvel, dtheta_prev, dvel_prev, dt: float) -> N
     tl = sl / cl
     wie_n, wie_d = _OMEGA * cl, -_OMEGA * sl
     wen_n, wen_e, wen_d = ve / rnh, -vn / rmh, -ve * tl / rnh
-    g = earth.gravity(lat, h)
+    g = earth.gravity_sin2(sl * sl, h)
 
     # Specific-force increment in b: rotation + two-sample sculling (Savage 1998).
     fx = ux + 0.5 * (ay * uz - az * uy) + ((py * uz - pz * uy) + (wy * az - wz * ay)) / 12.0
