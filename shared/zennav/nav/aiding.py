@@ -41,7 +41,7 @@ def antenna_velocity(s: NavState, lever_b: np.ndarray, omega_ib_b: np.ndarray) -
     """NED velocity of the antenna [m/s] given the body rate omega_ib_b [rad/s]."""
     C_nb = s.C_nb
     omega_in_n = earth.omega_ie_n(s.lat) + earth.omega_en_n(s.lat, s.h, (s.vn, s.ve, s.vd))
-    return s.v_n + C_nb @ np.cross(omega_ib_b, lever_b) - np.cross(omega_in_n, C_nb @ lever_b)
+    return s.v_n + C_nb @ (skew(omega_ib_b) @ lever_b) - skew(omega_in_n) @ (C_nb @ lever_b)
 
 
 def velocity_model(s: NavState, lever_b: np.ndarray, omega_ib_b: np.ndarray, fix_v_n: np.ndarray):
@@ -51,6 +51,6 @@ def velocity_model(s: NavState, lever_b: np.ndarray, omega_ib_b: np.ndarray, fix
     z = antenna_velocity(s, lever_b, omega_ib_b) - fix_v_n
     H = np.zeros((3, N_STATES))
     H[:, VEL] = np.eye(3)
-    H[:, ATT] = skew(C_nb @ np.cross(omega_ib_b, lever_b)) - skew(omega_in_n) @ skew(C_nb @ lever_b)
+    H[:, ATT] = skew(C_nb @ (skew(omega_ib_b) @ lever_b)) - skew(omega_in_n) @ skew(C_nb @ lever_b)
     H[:, BG] = C_nb @ skew(lever_b)
     return z, H
