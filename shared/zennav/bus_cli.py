@@ -77,7 +77,8 @@ def launch_cmd(launch_file, rendezvous, vehicle, until):
 @click.command("monitor", context_settings=_PASS)
 @click.pass_context
 def monitor_cmd(ctx):
-    """Live per-key rate, lag, drops and rejections; services alive, GNSS state, test ratios, model version.
+    """Live per-key rate, lag, drops and rejections; services alive, GNSS state, alignment, live GNSS R estimate,
+    test ratios, attitude, model version.
     Options: --json, --once, --duration S, --interval S, plus the bus options (see zennav-monitor --help)."""
     from zennav.services.monitor import main
 

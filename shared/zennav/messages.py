@@ -26,9 +26,12 @@ Key grammar (DESIGN.md section 4), ``<base> = zennav/@v1/<vehicle>``::
     <base>/nav/solution           nav_solution    navigation solution at IMU rate
     <base>/nav/aid/<source>       aid_report      one aiding update (gnss_pos, gnss_vel, ...)
     <base>/nav/status             nav_status      ins health: GNSS state, counters, stream progress
-    <base>/learn/samples          learn_sample    training pairs emitted while GNSS is good
-    <base>/learn/model/<name>     model_params    versioned parameter sets (latest served to late joiners)
-    <base>/learn/correction       correction      predicted INS error during outages
+    <base>/learn/samples          learn_sample    training pairs emitted while GNSS is good (ins -> trainer)
+    <base>/learn/query            learn_query     prediction requests while GNSS is lost (ins -> predictor)
+    <base>/learn/model/<name>     model_params    versioned parameter sets (trainer -> predictor; latest served to
+                                                  late joiners; the wire form of zennav.learn.paramset)
+    <base>/learn/correction       correction      the answer to one learn_query: prediction, 1-sigma, model name
+                                                  and version (predictor -> ins)
     <base>/svc/<service>/status   service_status  per-service heartbeat: state, counters, rejections
     <base>/@alive/<service>       (liveliness token, no payload)
 
@@ -120,6 +123,9 @@ class Keys:
     def learn_model(self, name: str = "*") -> str:
         return f"{self.base}/learn/model/{name if name == '*' else check_chunk(name, 'model name')}"
 
+    def learn_query(self) -> str:
+        return f"{self.base}/learn/query"
+
     def learn_correction(self) -> str:
         return f"{self.base}/learn/correction"
 
@@ -184,6 +190,8 @@ STREAMS: tuple[Stream, ...] = (
     Stream("nav/status", r"nav/status", ("nav_status",), "nondecreasing",
            QoS("reliable", "drop", "DATA", latest=True)),
     Stream("learn/samples", r"learn/samples", ("learn_sample",), "nondecreasing", QoS("reliable", "block", "DATA_LOW")),
+    Stream("learn/query", r"learn/query", ("learn_query",), "nondecreasing",
+           QoS("reliable", "block", "INTERACTIVE_HIGH", express=True)),
     Stream("learn/model", r"learn/model/[^/]+", ("model_params",), "none", QoS("reliable", "block", "DATA", latest=True)),
     Stream("learn/correction", r"learn/correction", ("correction",), "nondecreasing",
            QoS("reliable", "block", "INTERACTIVE_HIGH", express=True, latest=True)),
@@ -274,8 +282,9 @@ _schema("stream_start", 1, "Start of a sensor stream: dataset name, NavConfig an
 _schema("stream_end", 1, "End of a sensor stream: counts published per stream and the last cseq.",
         **SENSOR, counts=MAP, last_cseq=INT)
 _schema("attitude", 1, "Attitude filter output: q_nb (scalar first), euler roll/pitch/yaw [rad], gyro_bias [rad/s], "
-        "weight: accelerometer rejection weight in [0, 1].",
-        q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), weight=FLOAT)
+        "weight: accelerometer rejection weight in [0, 1]; omega_in_n [rad/s, NED] (optional, added compatibly): "
+        "the earth + transport rate applied to this sample (zeros without an ins solution).",
+        q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), weight=FLOAT, omega_in_n=OPT(VEC(3)))
 _schema("nav_solution", 1, "Navigation solution of the IMU at t_ns (see zennav.nav.navigator.NavSolution); "
         "imu_cseq/imu_pub_ns identify the IMU sample that produced it (latency, loss checks).",
         llh=VEC(3), v_n=VEC(3), q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), accel_bias=VEC(3),
@@ -285,17 +294,32 @@ _schema("aid_report", 1, "One aiding update: observation, innovation, innovation
         source=STR, observation=FLOATS, innovation=FLOATS, innovation_var=FLOATS, test_ratio=OPT(FLOAT),
         fused=BOOL, reason=STR)
 _schema("nav_status", 1, "ins health: GNSS state, core counters, rejected (bus validator reasons and samples dropped "
-        "as not from the live stream), stream progress (src, done, last_cseq, merge counts), live model.",
-        gnss_state=STR, counters=MAP, rejected=MAP, imu_count=INT, gnss_count=INT, stream=MAP, model=MAP)
+        "as not from the live stream), stream progress (src, done, last_cseq, merge counts), live model. "
+        "Optional (added compatibly, checked strictly when present, see check_nav_status): alignment {state: "
+        "coarse|fine|aligned, method, heading_std_rad, times_ns {state: t_ns}, tilt_source, gyrocompass}; "
+        "adaptive_r: adaptive measurement noise on/off; measurement_noise {source: {R_diag [unit^2], ratio "
+        "(R / reported R, diagonal) or None, branch, k, inflate, fading}}.",
+        gnss_state=STR, counters=MAP, rejected=MAP, imu_count=INT, gnss_count=INT, stream=MAP, model=MAP,
+        alignment=OPT(MAP), adaptive_r=OPT(BOOL), measurement_noise=OPT(MAP))
+ALIGN_STATES = ("coarse", "fine", "aligned")
 _schema("learn_sample", 1, "Training pair emitted while GNSS is valid: features and target (normalisation is the "
-        "trainer's), variant names the target definition.",
+        "trainer's), variant names the target definition (zennav.nav.learning: 'position', 'velocity', 'drift').",
         features=FLOATS, target=FLOATS, variant=STR)
+_schema("learn_query", 1, "Prediction request of the ins while GNSS is lost (zennav.nav.learning.LearnQuery): "
+        "t_ns the query time, target the variant, features as in learn_sample, dt_s the interval of a rate target "
+        "[s]. The query is identified by its header (src, seq); the answer is one correction naming them.",
+        target=STR, features=FLOATS, dt_s=FLOAT)
 _schema("model_params", 1, "Versioned parameter set: name, version, kind, created_t_ns, normalisation "
-        "{key: floats}, arrays {key: {shape, data}}, metrics, checksum (params_checksum).",
-        name=STR, version=INT, kind=STR, created_t_ns=INT, norm=MAP, arrays=MAP, metrics=MAP, checksum=STR)
-_schema("correction", 1, "Predicted INS error during an outage: kind (e.g. 'pos_ned' [m]), value, 1-sigma std, "
-        "model name and version used.",
-        kind=STR, value=FLOATS, std=FLOATS, model=STR, version=INT)
+        "{key: {shape, data[, dtype]}} (or {key: floats}), arrays {key: {shape, data[, dtype]}}, metrics, checksum. "
+        "format (optional) names the parameter-set format; with format 'zennav.paramset/1' (model_params_msg / "
+        "paramset_of) the message is zennav.learn.paramset's set with each array's bytes as a number list, and "
+        "checksum is paramset.checksum of that set, verified end to end; otherwise params_checksum.",
+        name=STR, version=INT, kind=STR, created_t_ns=INT, norm=MAP, arrays=MAP, metrics=MAP, checksum=STR,
+        format=OPT(STR))
+_schema("correction", 1, "Predicted INS error: kind (the learn_query target, or e.g. 'pos_ned' [m]), value, 1-sigma "
+        "std, model name and version used; t_ns the time of the query answered; query_src/query_seq (optional) "
+        "the header of the learn_query answered.",
+        kind=STR, value=FLOATS, std=FLOATS, model=STR, version=INT, query_src=OPT(STR), query_seq=OPT(INT))
 _schema("service_status", 1, "Per-service heartbeat: state (starting|running|not_implemented|done|stopping), "
         "detail, counters, rejections per reason; t_ns is wall clock here.",
         service=STR, state=STR, detail=STR, counters=MAP, rejected=MAP)
@@ -452,6 +476,68 @@ def map_array(m: dict) -> np.ndarray:
     return np.asarray(m["data"], dtype=np.float64).reshape(m["shape"])
 
 
+# learning loop (DESIGN.md section 5): ins -> learn/samples -> trainer -> learn/model/<name> -> predictor;
+# ins -> learn/query -> predictor -> learn/correction -> ins
+PARAMSET_FORMAT = "zennav.paramset/1"  # zennav.learn.paramset.SCHEMA (not imported: no learn dependency here)
+_PS_DTYPES = ("<f8", "<i8")  # little-endian float64, int64
+
+
+def learn_sample_msg(sample) -> dict:
+    """zennav.nav.learning.LearnSample -> learn_sample message."""
+    return make("learn_sample", sample.t_ns, features=floats(sample.features), target=floats(sample.value),
+                variant=str(sample.target))
+
+
+def learn_query_msg(query) -> dict:
+    """zennav.nav.learning.LearnQuery -> learn_query message."""
+    return make("learn_query", query.t_ns, target=str(query.target), features=floats(query.features),
+                dt_s=float(query.dt_s))
+
+
+def correction_msg(query: dict, value, std, model: str, version: int) -> dict:
+    """The answer to a (published, so src/seq-stamped) learn_query message."""
+    return make("correction", query["t_ns"], kind=query["target"], value=floats(value), std=floats(std),
+                model=str(model), version=int(version), query_src=query["src"], query_seq=int(query["seq"]))
+
+
+def model_params_msg(ps: dict) -> dict:
+    """A parameter set of zennav.learn.paramset (build()) -> model_params message: the same fields, each array's
+    little-endian bytes as a number list (float64 -> float, int64 -> int: exact), the set's own checksum.
+    paramset_of() is the inverse, byte for byte, so the predictor verifies the trainer's checksum."""
+    def wire(enc: dict) -> dict:
+        if enc["dtype"] not in _PS_DTYPES:
+            raise ValueError(f"unsupported dtype {enc['dtype']!r}")
+        return {"dtype": enc["dtype"], "shape": [int(d) for d in enc["shape"]],
+                "data": np.frombuffer(enc["data"], dtype=np.dtype(enc["dtype"])).tolist()}
+
+    return make("model_params", ps["created_t_ns"], name=ps["name"], version=int(ps["version"]), kind=ps["kind"],
+                created_t_ns=int(ps["created_t_ns"]), norm={k: wire(v) for k, v in ps["norm"].items()},
+                arrays={k: wire(v) for k, v in ps["arrays"].items()}, metrics=_pyval(dict(ps["metrics"])),
+                checksum=ps["checksum"], format=PARAMSET_FORMAT if ps.get("schema") == PARAMSET_FORMAT
+                else str(ps.get("schema")))
+
+
+def paramset_of(msg: dict) -> dict:
+    """model_params message -> the zennav.learn.paramset message it carries (for paramset.validate, which then
+    checks schema, checksum, shapes, finiteness and version). An array map that is not convertible is passed on
+    as it is, so that validate rejects it with reason 'schema'; a float in an int64 array likewise."""
+    def raw(m):
+        if not (isinstance(m, dict) and {"dtype", "shape", "data"} <= set(m) and isinstance(m["data"], list)):
+            return m
+        if m["dtype"] not in _PS_DTYPES or (m["dtype"] == "<i8" and not all(type(x) is int for x in m["data"])):
+            return m
+        try:
+            data = np.asarray(m["data"], dtype=np.dtype(m["dtype"])).tobytes()
+        except (TypeError, ValueError, OverflowError):
+            return m
+        return {"dtype": m["dtype"], "shape": m["shape"], "data": data}
+
+    return {"schema": msg.get("format"), "kind": msg["kind"], "name": msg["name"], "version": msg["version"],
+            "created_t_ns": msg["created_t_ns"], "norm": {k: raw(v) for k, v in msg["norm"].items()},
+            "arrays": {k: raw(v) for k, v in msg["arrays"].items()}, "metrics": msg["metrics"],
+            "checksum": msg["checksum"]}
+
+
 # ---------------------------------------------------------------------------------------------- validation
 def _check_value(spec, v, name: str) -> str:
     """'' when v fits spec, else 'code: detail'. Float lists are normalised in place by the caller."""
@@ -557,8 +643,8 @@ def validate_map(msg: Any, key: str | None = None) -> str:
     fast = _FAST.get(name)
     if fast is None:
         fast = _FAST[name] = _compile_fast(schema)
-    if fast(msg) and name != "model_params":  # straight-line check of every field; the loop explains failures
-        return ""
+    if fast(msg) and name not in ("model_params", "nav_status"):  # straight-line check of every field; the loop
+        return ""  # explains failures
     needs_norm = False
     isfinite = math.isfinite
     for fname, spec, code, n, optional in _plan(schema):
@@ -589,8 +675,54 @@ def validate_map(msg: Any, key: str | None = None) -> str:
                 return f"bad_shape: arrays.{an} shape {am['shape']} vs {len(am['data'])} values"
             if not all(type(x) in (float, int) for x in am["data"]):
                 return f"bad_type: arrays.{an} data not numbers"
+    if name == "nav_status":
+        r = check_nav_status(msg)
+        if r:
+            return r
     if needs_norm:
         _normalise(schema, msg)
+    return ""
+
+
+def _num(x) -> bool:
+    return type(x) is float or type(x) is int
+
+
+def check_nav_status(msg: dict) -> str:
+    """Structure of nav_status's optional maps (values are already known finite): '' or 'code: detail'.
+    Extra keys inside them are tolerated (forward compatible), the documented ones must have their types."""
+    al = msg.get("alignment")
+    if al is not None:
+        if al.get("state") not in ALIGN_STATES:
+            return f"bad_value: alignment.state {str(al.get('state'))[:40]!r} not in {ALIGN_STATES}"
+        for f in ("method", "tilt_source", "gyrocompass"):
+            if type(al.get(f)) is not str:
+                return f"bad_type: alignment.{f} is {type(al.get(f)).__name__}, want str"
+        hs = al.get("heading_std_rad")
+        if not _num(hs) or hs < 0:
+            return "bad_value: alignment.heading_std_rad must be a number >= 0"
+        times = al.get("times_ns")
+        if type(times) is not dict or not all(k in ALIGN_STATES and type(v) is int for k, v in times.items()):
+            return "bad_value: alignment.times_ns must map alignment states to int t_ns"
+    mn = msg.get("measurement_noise")
+    if mn is not None:
+        for src, e in mn.items():
+            if type(src) is not str or not _CHUNK.match(src):
+                return f"bad_value: measurement_noise source {str(src)[:40]!r}"
+            if type(e) is not dict:
+                return f"bad_type: measurement_noise.{src} is {type(e).__name__}, want map"
+            rd = e.get("R_diag")
+            if type(rd) is not list or not 1 <= len(rd) <= 6 or not all(_num(x) and x >= 0 for x in rd):
+                return f"bad_value: measurement_noise.{src}.R_diag must be 1..6 numbers >= 0"
+            ratio = e.get("ratio")
+            if ratio is not None and (type(ratio) is not list or len(ratio) != len(rd)
+                                      or not all(_num(x) and x > 0 for x in ratio)):
+                return f"bad_value: measurement_noise.{src}.ratio must be None or {len(rd)} numbers > 0"
+            if type(e.get("branch")) is not str:
+                return f"bad_type: measurement_noise.{src}.branch must be str"
+            for f in ("k", "inflate", "fading"):
+                if f in e and type(e[f]) is not int:
+                    return f"bad_type: measurement_noise.{src}.{f} must be int"
     return ""
 
 

@@ -32,7 +32,8 @@ def test_launch_waits_prefixes_restarts_and_stops_cleanly(cluster, tmp_path):
         assert watcher.wait_alive(["router", "ins", "attitude", "trainer"], 20)
         log = launch.text()
         assert re.search(r"^\[ins\s*\] .*ins up", log, re.M), log
-        assert re.search(r"^\[trainer\s*\] .*NOT IMPLEMENTED", log, re.M), log
+        wait_until(lambda: re.search(r"^\[trainer\s*\] .*trainer up \(running", launch.text(), re.M), 20,
+                   "launch: the trainer's 'up' line")
         pid = int(re.search(r"started attitude \(pid (\d+)\)", log).group(1))
         os.kill(pid, signal.SIGKILL)
         wait_until(lambda: "attitude DIED (signal SIGKILL)" in launch.text(), 20, "launch: attitude died")

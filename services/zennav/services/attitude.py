@@ -1,29 +1,74 @@
-"""attitude service: seed 000's adaptive PI complementary filter (zennav.attitude) at IMU rate.
+"""attitude service: seed 000's adaptive PI complementary filter (zennav.attitude.complementary) at IMU rate.
 
 Wiring table
-    subscribes <base>/sensor/**       stream_start -> reset the filter; imu -> one filter step
-    publishes  <base>/attitude        attitude (q_nb, roll/pitch/yaw, gyro-bias estimate, rejection weight)
+    subscribes <base>/sensor/**       stream_start -> new filter; imu -> one filter step (in cseq order);
+                                      stream_end -> flush, stream summary
+               <base>/nav/solution    latest position/velocity -> omega_in_n = omega_ie_n + omega_en_n
+    publishes  <base>/attitude        one per IMU sample: q_nb, roll/pitch/yaw, gyro-bias estimate, rejection
+                                      weight, and the omega_in_n applied (zeros without a recent ins solution)
 
-IMU increments become rates over the sample interval (omega = dtheta/dt, f = dvel/dt). Until the attitude
-core is importable (issue 4) the service starts, announces itself and reports 'not_implemented'.
+The core is ``AdaptiveComplementaryFilter`` with the gains of deploy/attitude.yaml (human units, converted
+once by ``ComplementaryConfig``; ``--config`` picks another file). IMU increments become rates over the
+sample's interval: ``omega_ib_b = dtheta / dt``, ``f_b = dvel / dt`` with ``dt = dt_ns / 1e9``.
+
+Order and exactness. Sensor messages are consumed strictly in the ingest's ``cseq`` order (SequenceMerger,
+only from the live stream's source), as the ins service does. Until the filter is levelled the samples of
+the first ``level_time_s`` are held and then run as one ``batch`` (levelling from their mean, as the batch
+API does), then every sample is one ``step``; every sample is run with ``omega_in_n`` given (zeros when
+none), so the published stream equals ``AdaptiveComplementaryFilter(cfg).batch(omega, f, dt=dt,
+omega_in_n=<the published omega_in_n>)`` over the same samples bit for bit
+(tests/integration/test_attitude_status.py checks it).
+
+Rate of the navigation frame (seed 000's projected rate): ``omega_in_n`` is computed from the latest
+nav/solution (latitude, height, NED velocity) when its sample time is within ``--rate-max-age`` seconds of
+the IMU sample, else zeros (no ins, or a dead one). The rate changes slowly (the earth rate with latitude; the
+transport rate is about 1 deg/h at 30 m/s), so a solution tens of seconds old is still a good value: the
+default limit of 60 s leaves room for the ins to lag behind this service when a recording is streamed as fast
+as possible (each consumer's queue holds about 40 s of 200 Hz data). The value applied is published with each
+sample, so a consumer can reproduce the output whatever the arrival timing of the solutions was.
+
+A service started in the middle of a stream (restart) joins it at the first sensor message it receives
+(counted as ``late_join``) and levels from there.
 """
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
+import time
+from pathlib import Path
+
+import numpy as np
 
 from zennav import messages as M
-from zennav.service import ServiceRunner, add_bus_args, not_implemented_main
+from zennav.service import ServiceRunner, add_bus_args
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "deploy" / "attitude.yaml"
+ZERO3 = (0.0, 0.0, 0.0)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="zennav-attitude", description="zennav attitude service")
-    p.add_argument("--imu-id", default="0")
-    return add_bus_args(p)
+def load_config(path: str | os.PathLike | None = None):
+    """ComplementaryConfig from a parameter file (``attitude:`` mapping, human units). path None: the
+    ZENNAV_ATTITUDE_CONFIG file, else deploy/attitude.yaml, else the built-in defaults (same values)."""
+    import yaml
+
+    from zennav.attitude.complementary import ComplementaryConfig
+
+    explicit = path or os.environ.get("ZENNAV_ATTITUDE_CONFIG")
+    p = Path(explicit) if explicit else DEFAULT_CONFIG
+    if not p.exists():
+        if explicit:
+            raise FileNotFoundError(f"attitude parameter file {p} not found")
+        return ComplementaryConfig(), "built-in defaults"
+    doc = yaml.safe_load(p.read_text()) or {}
+    if not isinstance(doc, dict) or not isinstance(doc.get("attitude"), dict):
+        raise ValueError(f"{p}: needs an 'attitude:' mapping")
+    return ComplementaryConfig.from_mapping(doc["attitude"]), str(p)
 
 
-def _euler(q) -> list:
+def euler_of(q) -> list:
+    """(roll, pitch, yaw) [rad] of q_nb, the same float operations as zennav.nav.rotation.quat_to_euler."""
     q0, q1, q2, q3 = q
     c20 = 2 * (q1 * q3 - q0 * q2)
     c21 = 2 * (q2 * q3 + q0 * q1)
@@ -33,42 +78,183 @@ def _euler(q) -> list:
     return [math.atan2(c21, c22), math.atan2(-c20, math.hypot(c21, c22)), math.atan2(c10, c00)]
 
 
-def main(argv=None) -> int:
-    try:
-        from zennav.attitude.complementary import AdaptiveComplementaryFilter
-    except Exception as e:  # the core of issue 4 has not landed
-        return not_implemented_main("attitude", f"attitude core unavailable ({type(e).__name__}: {e})", argv,
-                                    ["{base}/sensor/**"])
-    args = build_parser().parse_args(argv)
-    run = ServiceRunner("attitude", args)
-    k = run.keys
-    imu_key = k.imu(args.imu_id)
-    pub = run.bus.publisher(k.attitude())
-    st = {"filter": AdaptiveComplementaryFilter(), "src": None, "imu": 0, "published": 0}
+def omega_in_n_of(llh, v_n) -> tuple:
+    """omega_in_n = omega_ie_n + omega_en_n [rad/s, NED] at llh [rad, rad, m] moving at v_n [m/s]."""
+    from zennav.nav import earth
 
-    def on_sensor(key, msg, recv_ns):
+    lat, h = float(llh[0]), float(llh[2])
+    w = earth.omega_ie_n(lat) + earth.omega_en_n(lat, h, np.asarray(v_n, dtype=float))
+    return tuple(float(x) for x in w)
+
+
+class AttitudeNode:
+    """The transport-free part of the attitude service: feed validated sensor messages with ``on_sensor`` and
+    nav solutions with ``on_solution``; it calls ``publish(msg)`` with one attitude message per IMU sample."""
+
+    def __init__(self, publish, log, config, imu_key: str, rate_max_age_s: float = 60.0, on_state=None):
+        self.publish = publish
+        self.log = log
+        self.on_state = on_state or (lambda detail: None)
+        self.config = config
+        self.imu_key = imu_key
+        self.rate_max_age_ns = int(rate_max_age_s * 1e9)
+        self.filter = None
+        self.src: str | None = None
+        self.dataset = ""
+        self.merger: M.SequenceMerger | None = None
+        self.done = False
+        self._levelled = False
+        self._held: list = []  # (t_ns, dt, omega, f, w_in) until levelled
+        self._held_s = 0.0
+        self._rate: tuple | None = None  # (t_ns, omega_in_n) of the latest nav solution
+        self.counts = {"imu": 0, "published": 0, "rate_applied": 0, "late_join": 0, "foreign_source": 0,
+                       "duplicate_start": 0, "bad_dt": 0, "solutions": 0}
+        self.cost_s = 0.0  # time spent in the filter and building the messages [s]
+        self.publish_s = 0.0  # time spent in publish (encode + zenoh put, incl. back-pressure waits) [s]
+
+    # ------------------------------------------------------------------ input
+    def on_sensor(self, key: str, msg: dict) -> None:
         schema = msg["schema"]
         if schema == "stream_start":
-            if msg["src"] != st["src"]:
-                st["filter"], st["src"] = AdaptiveComplementaryFilter(), msg["src"]
-                run.log.info("stream %s: filter reset", msg["dataset"])
+            if msg["src"] == self.src:
+                self.counts["duplicate_start"] += 1
+                return
+            self._start(msg["src"], msg["cseq"] + 1, msg["dataset"])
             return
-        if key != imu_key or schema != "imu":
-            return
-        dt = msg["dt_ns"] / 1e9
-        if dt <= 0.0:
-            return
-        st["imu"] += 1
-        dth, dv = msg["dtheta"], msg["dvel"]
-        s = st["filter"].step(dt, [x / dt for x in dth], [x / dt for x in dv])
-        q = [float(x) for x in s.q_nb]
-        pub.put(M.make("attitude", msg["t_ns"], q_nb=q, euler=_euler(q), gyro_bias=M.floats(s.bias_b),
-                       weight=float(s.weight)))
-        st["published"] += 1
+        if msg["src"] != self.src:
+            if self.src is None or self.done:  # joined in the middle of a stream (e.g. after a restart)
+                self.counts["late_join"] += 1
+                self.log.warning("joining stream from %s at cseq %d (its start was missed)", msg["src"], msg["cseq"])
+                self._start(msg["src"], msg["cseq"], "(joined late)")
+            else:
+                self.counts["foreign_source"] += 1
+                return
+        self.merger.push(msg["cseq"], (key, msg), self._consume)
 
-    run.counters = lambda: {"imu": st["imu"], "published": st["published"]}
-    run.bus.subscribe(k.sensors(), on_sensor, channel="fifo", capacity=8192, name="sensors")
-    run.ready("running", "adaptive PI complementary filter (seed 000)")
+    def on_solution(self, msg: dict) -> None:
+        """nav_solution -> omega_in_n for the IMU samples that follow."""
+        self.counts["solutions"] += 1
+        self._rate = (msg["t_ns"], omega_in_n_of(msg["llh"], msg["v_n"]))
+
+    def _start(self, src: str, next_cseq: int, dataset: str) -> None:
+        from zennav.attitude.complementary import AdaptiveComplementaryFilter
+
+        if self.src is not None and src != self.src:
+            self.log.info("new stream %s from %s replaces %s", dataset, src, self.src)
+        self.filter = AdaptiveComplementaryFilter(self.config)
+        self.src, self.dataset, self.done = src, dataset, False
+        self.merger = M.SequenceMerger(next_cseq)
+        self._levelled, self._held, self._held_s = False, [], 0.0
+        self._rate = None
+        self.log.info("stream %s from %s: filter reset", dataset, src)
+        self.on_state(f"filtering stream {dataset} from {src}")
+
+    def _consume(self, item) -> None:
+        key, msg = item
+        schema = msg["schema"]
+        if schema == "imu":
+            if key == self.imu_key:
+                self._imu(msg)
+        elif schema == "stream_end":
+            self.merger.flush(self._consume)
+            if self._held:  # a stream shorter than the levelling time: level from what there is
+                self._run_held()
+            self.done = True
+            n = self.counts["imu"]
+            self.log.info("end of stream %s: %d IMU, %d attitudes published, omega_in_n applied to %d; "
+                          "%.2f us per sample in the filter + message, %.2f us publishing; merger %s", self.dataset,
+                          n, self.counts["published"], self.counts["rate_applied"], self.cost_us(),
+                          1e6 * self.publish_s / max(n, 1), dict(self.merger.counts))
+            self.on_state(f"stream {self.dataset} done: {self.counts['published']} attitudes, "
+                          f"{self.cost_us():.1f} us per sample")
+
+    def _imu(self, msg: dict) -> None:
+        t0 = time.perf_counter()
+        dt_ns = msg["dt_ns"]
+        if dt_ns <= 0:
+            self.counts["bad_dt"] += 1
+            return
+        self.counts["imu"] += 1
+        dt = dt_ns / 1e9
+        omega = [x / dt for x in msg["dtheta"]]
+        f = [x / dt for x in msg["dvel"]]
+        t_ns = msg["t_ns"]
+        r = self._rate
+        if r is not None and abs(t_ns - r[0]) <= self.rate_max_age_ns:
+            w_in = r[1]
+            self.counts["rate_applied"] += 1
+        else:
+            w_in = ZERO3
+        if not self._levelled:
+            # hold the levelling window, then run it as one batch (levels from its mean, as batch does)
+            self._held.append((t_ns, dt, omega, f, w_in))
+            self._held_s += dt
+            if self._held_s > self.config.level_time_s * (1.0 + 1e-9):
+                self._run_held()
+        else:
+            s = self.filter.step(dt, omega, f, w_in)
+            self._emit(t_ns, s.q_nb.tolist(), s.bias_b.tolist(), s.weight, w_in)
+        self.cost_s += time.perf_counter() - t0
+
+    def _run_held(self) -> None:
+        held, self._held, self._levelled = self._held, [], True
+        b = self.filter.batch(np.array([h[2] for h in held]), np.array([h[3] for h in held]),
+                              dt=np.array([h[1] for h in held]), omega_in_n=np.array([h[4] for h in held]))
+        q, bias, w = b.q_nb.tolist(), b.bias_b.tolist(), b.weight.tolist()
+        for i, h in enumerate(held):
+            self._emit(h[0], q[i], bias[i], w[i], h[4])
+
+    def _emit(self, t_ns: int, q: list, bias: list, weight: float, w_in) -> None:
+        msg = M.make("attitude", t_ns, q_nb=q, euler=euler_of(q), gyro_bias=bias, weight=float(weight),
+                     omega_in_n=list(w_in))
+        t0 = time.perf_counter()
+        self.publish(msg)
+        self.publish_s += time.perf_counter() - t0
+        self.counts["published"] += 1
+
+    def cost_us(self) -> float:
+        """Filter + message building per IMU sample [us] (publishing excluded)."""
+        return 1e6 * (self.cost_s - self.publish_s) / max(self.counts["imu"], 1)
+
+    def counters(self) -> dict:
+        n = max(self.counts["imu"], 1)
+        return {**self.counts, "cost_us_per_sample": round(self.cost_us(), 2),
+                "publish_us_per_sample": round(1e6 * self.publish_s / n, 2), "done": int(self.done)}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="zennav-attitude", description="zennav attitude service (seed 000 filter)")
+    p.add_argument("--imu-id", default="0")
+    p.add_argument("--config", default=None,
+                   help="attitude parameter file (default: ZENNAV_ATTITUDE_CONFIG, else deploy/attitude.yaml)")
+    p.add_argument("--rate-max-age", type=float, default=60.0,
+                   help="use the ins solution for omega_in_n while it is at most this old (sample time) [s]")
+    p.add_argument("--queue", type=int, default=8192, help="sensor queue capacity (back-pressure beyond)")
+    return add_bus_args(p)
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    run = ServiceRunner("attitude", args)
+    try:
+        config, origin = load_config(args.config)
+    except Exception as e:
+        run.log.error("bad attitude parameters: %s", e)
+        run.set_state("error", f"bad attitude parameters: {e}")
+        run.close()
+        return 2
+    k = run.keys
+    pub = run.bus.publisher(k.attitude())
+    node = AttitudeNode(pub.put, run.log, config, k.imu(args.imu_id), args.rate_max_age,
+                        on_state=lambda d: setattr(run, "detail", d))
+    run.log.info("gains from %s: k_p %.4g 1/s, k_i %.4g 1/s^2", origin, *config.gains())
+    run.counters = node.counters
+    run.bus.subscribe(k.nav_solution(), lambda key, msg, recv_ns: node.on_solution(msg), channel="ring",
+                      capacity=64, name="solution")
+    # every sensor message of the live stream goes through the cseq merge (GNSS included, or it would leave gaps)
+    run.bus.subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
+                      capacity=args.queue, name="sensors")
+    run.ready("running", f"waiting for a sensor stream; gains from {origin}")
     try:
         run.wait()
     finally:

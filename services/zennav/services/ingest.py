@@ -24,6 +24,7 @@ import json
 import sys
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -125,6 +126,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--outage", action="append", default=[], metavar="START:DURATION",
                    help="withhold GNSS for DURATION s starting START s after the initial time (repeatable)")
     p.add_argument("--outage-every", default=None, metavar="PERIOD:DURATION:FIRST", help="periodic outages [s]")
+    p.add_argument("--heading-unknown", action="store_true",
+                   help="start without the dataset's initial yaw: the ins aligns (as `zennav replay --heading-unknown`)")
+    p.add_argument("--adaptive-r", action=argparse.BooleanOptionalAction, default=None,
+                   help="innovation-based adaptive GNSS measurement noise (seed 001) on/off; default: the dataset's")
     p.add_argument("--imu-id", default="0")
     p.add_argument("--gnss-id", default="0")
     p.add_argument("--wait-for", default="ins", help="comma-separated services to wait for (liveliness); '' none")
@@ -163,6 +168,10 @@ def main(argv=None) -> int:
     run.ready("starting", f"loading {args.source}")
     try:
         ds = load_source(args.source, _parse_options(args.option))
+        if args.heading_unknown:  # travels to the ins in stream_start's InitialState
+            ds.initial = replace(ds.initial, heading_known=False)
+        if args.adaptive_r is not None:  # travels in stream_start's NavConfig
+            ds.config = ds.config.with_(adaptive_r=args.adaptive_r)
         outages = [tuple(float(x) for x in o.split(":")) for o in args.outage]
         every = tuple(float(x) for x in args.outage_every.split(":")) if args.outage_every else None
         windows, events = sensor_events(ds, outages, every)

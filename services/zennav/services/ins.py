@@ -3,11 +3,22 @@
 Wiring table
     subscribes <base>/sensor/**          stream_start -> new Navigator(config, initial); imu -> on_imu;
                                          gnss -> on_gnss; stream_end -> final status (acknowledges the end)
-               <base>/learn/correction   predicted INS error (fused when the core gains that input)
+               <base>/learn/correction   the predictor's answer to one of our learn/query messages: fused
+                                         as a pseudo-measurement (Navigator.on_correction; --learning only)
     publishes  <base>/nav/solution       one per IMU sample (every --solution-every-th)
-               <base>/nav/aid/<source>   every aiding report (gnss_pos, gnss_vel, ...)
+               <base>/nav/aid/<source>   every aiding report (gnss_pos, gnss_vel, ..., learned_drift)
                <base>/nav/status         GNSS state, core counters, rejections, stream progress
                                          (every second of data time, on GNSS state changes, at stream end)
+               <base>/learn/samples      --learning: the core's training samples (GNSS good, converged)
+               <base>/learn/query        --learning: the core's prediction requests (GNSS lost)
+
+Learning (--learning; off by default, and then the core and its output are exactly the in-process replay's):
+the stream's NavConfig gets ``learning=True``; after every IMU sample the core's LearnSamples and LearnQueries
+of the --learn-targets variants are published. A query stays pending until its correction (matched by the
+query's src/seq) arrives; an answer is fused only if no GNSS fix was fused since the query and the query is
+at most --correction-max-age seconds of data time old (else counted: stale, late); unmatched answers
+(duplicates, other ins instances, expired queries) are counted and dropped. Because the answers arrive
+asynchronously, a run with learning on is not bit-reproducible.
 
 Sensor messages are consumed strictly in the ingest's ``cseq`` order (zennav.messages.SequenceMerger), and
 only from the source whose stream_start is live, so the core sees exactly the sequence the in-process
@@ -20,6 +31,7 @@ import math
 import sys
 import time
 
+import numpy as np
 
 from zennav import messages as M
 from zennav.service import ServiceRunner, add_bus_args
@@ -64,13 +76,86 @@ def _as_list(a) -> list:
     return out
 
 
+class LearningLink:
+    """The ins side of the learning loop over the bus (see the module docstring): publishes the core's samples
+    and queries (``publish("sample" | "query", msg)``; the publisher stamps src/seq), keeps the pending
+    queries and fuses the matching corrections."""
+
+    def __init__(self, publish, log, targets=("drift",), max_age_s: float = 1.0):
+        self.publish = publish
+        self.log = log
+        self.targets = frozenset(targets)
+        self.max_age_ns = int(max_age_s * 1e9)
+        self.pending: dict[tuple, object] = {}  # (src, seq) -> LearnQuery, oldest first
+        self.counts: dict[str, int] = {}
+        self.last_model = ""
+        self.last_version = -1
+        self._n = 0
+
+    def _count(self, what: str, n: int = 1) -> None:
+        self.counts[what] = self.counts.get(what, 0) + n
+
+    def reset(self) -> None:
+        if self.pending:
+            self._count("unanswered", len(self.pending))
+        self.pending.clear()
+
+    def after_imu(self, nav) -> None:
+        for s in nav.pop_samples():
+            if s.target in self.targets:
+                self.publish("sample", M.learn_sample_msg(s))
+                self._count("samples")
+        queries = nav.pop_queries()
+        p = self.pending
+        while p:  # queries never answered (no model for the target, predictor down, message lost)
+            first = next(iter(p))
+            if nav.t_ns - p[first].t_ns <= self.max_age_ns:
+                break
+            del p[first]
+            self._count("unanswered")
+        for q in queries:
+            if q.target not in self.targets:
+                continue
+            msg = M.learn_query_msg(q)
+            self.publish("query", msg)
+            self._n += 1
+            p[(msg.get("src", ""), msg.get("seq", self._n))] = q
+            self._count("queries")
+
+    def on_correction(self, nav, msg: dict) -> bool:
+        """Fuse the answer to a pending query; False (counted) when it is not fused."""
+        q = self.pending.pop((msg.get("query_src"), msg.get("query_seq")), None)
+        if q is None:
+            self._count("unmatched")
+            return False
+        if msg["kind"] != q.target:
+            self._count("mismatched")
+            return False
+        if nav.last_fused_t_ns >= q.t_ns:
+            self._count("stale")
+            return False
+        if nav.t_ns - q.t_ns > self.max_age_ns:
+            self._count("late")
+            return False
+        self.last_model, self.last_version = msg["model"], msg["version"]
+        fused = bool(nav.on_correction(q, msg["value"], msg["std"]))  # the core counts gate/malformed rejections
+        self._count("fused" if fused else "not_fused")
+        return fused
+
+    def status(self) -> dict:
+        return {"learning": True, "targets": sorted(self.targets), "pending": len(self.pending),
+                "model": self.last_model, "version": int(self.last_version),
+                **{k: int(v) for k, v in self.counts.items()}}
+
+
 class InsNode:
     """The transport-free part of the ins service (testable without zenoh): feed it validated messages with
     ``on_sensor(key, msg)``; it calls ``publish(kind, msg)`` with kind in solution/aid/status."""
 
     def __init__(self, publish, log, solution_every: int = 1, status_period_ns: int = 1_000_000_000,
-                 on_state=None, bus_rejected=None):
+                 on_state=None, bus_rejected=None, learning: LearningLink | None = None):
         self.publish = publish
+        self.learn = learning  # None: learning off (the default; the core runs exactly as in the replay)
         self.bus_rejected = bus_rejected or dict
         self.on_state = on_state or (lambda detail: None)
         self.log = log
@@ -89,6 +174,8 @@ class InsNode:
         self.corrections = 0
         self._next_status_t = None
         self._gnss_state = None
+        self._align_state = None
+        self.attitude_taken = 0
         self._wall0 = 0.0
         self.wall_s = 0.0
 
@@ -117,6 +204,9 @@ class InsNode:
             return
         config = M.map_to_dataclass(NavConfig, msg["config"])
         initial = M.map_to_dataclass(InitialState, msg["initial"])
+        if self.learn is not None:
+            config = config.with_(learning=True)
+            self.learn.reset()
         self.nav = Navigator(config, initial)
         self.src = msg["src"]
         self.dataset = msg["dataset"]
@@ -126,6 +216,7 @@ class InsNode:
         self.imu_count = self.gnss_count = self.sol_count = 0
         self._next_status_t = int(initial.t_ns) + self.status_period_ns
         self._gnss_state = self.nav.gnss_state
+        self._align_state = getattr(self.nav, "align_state", None)
         self._wall0 = time.perf_counter()
         self.wall_s = 0.0
         self.log.info("stream %s from %s: %s IMU, %s GNSS expected", self.dataset, self.src,
@@ -139,12 +230,15 @@ class InsNode:
             self.imu_count += 1
             ok = nav.on_imu(msg["t_ns"], msg["dtheta"], msg["dvel"])  # False: rejected by the core (counted)
             self._reports()
+            if self.learn is not None:
+                self.learn.after_imu(nav)
             if ok:
                 self.sol_count += 1
                 if self.sol_count % self.solution_every == 0:
                     self.publish("solution", solution_msg(nav, ok, msg["cseq"], msg["pub_ns"]))
-            if nav.gnss_state != self._gnss_state or msg["t_ns"] >= self._next_status_t:
-                self._gnss_state = nav.gnss_state
+            align = getattr(nav, "align_state", None)
+            if nav.gnss_state != self._gnss_state or align != self._align_state or msg["t_ns"] >= self._next_status_t:
+                self._gnss_state, self._align_state = nav.gnss_state, align
                 while self._next_status_t <= msg["t_ns"]:
                     self._next_status_t += self.status_period_ns
                 self.publish("status", self.status_msg())
@@ -167,18 +261,38 @@ class InsNode:
             self.on_state(f"stream {self.dataset} done: {self.imu_count} IMU, {self.gnss_count} GNSS, "
                           f"{self.sol_count} solutions")
 
+    def on_attitude(self, msg: dict, tilt_std_rad: float) -> bool:
+        """attitude message -> roll/pitch for coarse alignment (Navigator.on_attitude), only while the heading is
+        unknown ('coarse'), the vehicle stands still (the GNSS velocity held in coarse alignment below
+        align_still_speed_mps) and the filter's accelerometer is not rejected (weight 1): the accelerometer-only
+        tilt is wrong under sustained acceleration (about atan(a/g); 12 deg of pitch on sim:car's 1.5 m/s^2 for
+        15 s), so only the at-rest tilt is taken; the ins then carries it into the motion on its gyros. Returns
+        whether taken. Opt-in (--attitude-alignment): the moment a message arrives is not part of the sensor
+        sequence, so a run that takes it is not bit-reproducible by the in-process replay."""
+        nav = self.nav
+        if nav is None or getattr(nav, "align_state", None) != "coarse" or msg["weight"] < 1.0:
+            return False
+        if math.hypot(nav.state.vn, nav.state.ve) > nav.config.align_still_speed_mps:
+            return False
+        roll, pitch = msg["euler"][0], msg["euler"][1]
+        taken = bool(nav.on_attitude(msg["t_ns"], roll, pitch, tilt_std_rad))
+        self.attitude_taken += taken
+        return taken
+
     def _reports(self) -> None:
         for rep in self.nav.pop_reports():
             self.publish("aid", M.aid_report_msg(rep))
 
     def on_correction(self, key: str, msg: dict) -> None:
+        """A learn/correction message (the answer to one of our queries): fused with --learning, else ignored."""
         self.corrections += 1
-        fuse = getattr(self.nav, "on_correction", None)
-        if fuse is not None:
-            fuse(msg)
-        elif self.corrections == 1:
-            self.log.warning("learn/correction received but NOT fused: the navigation core has no "
-                             "pseudo-measurement input yet")
+        if self.learn is None or self.nav is None:
+            if self.corrections == 1:
+                self.log.warning("learn/correction received but ignored: %s", "learning is off (start the ins "
+                                 "with --learning)" if self.learn is None else "no stream yet")
+            return
+        self.learn.on_correction(self.nav, msg)
+        self._reports()
 
     # ------------------------------------------------------------------ output
     def status_msg(self) -> dict:
@@ -188,12 +302,49 @@ class InsNode:
                   "next_cseq": m.next if m else -1, "held": m.held if m else 0,
                   "solutions": self.sol_count, "wall_s": self.wall_s, **({k: int(v) for k, v in m.counts.items()} if m else {})}
         t = self.nav.t_ns if self.nav is not None else 0
+        extra = {}
+        if "alignment" in st:
+            extra["alignment"] = alignment_map(st["alignment"])
+        if "measurement_noise" in st:
+            extra["adaptive_r"] = bool(st.get("adaptive_r", False))
+            extra["measurement_noise"] = noise_map(st["measurement_noise"])
         return M.make("nav_status", t, gnss_state=str(st.get("gnss_state", "unknown")),
                       counters={str(k): int(v) for k, v in st.get("counters", {}).items()},
                       rejected={**{k: int(v) for k, v in self.bus_rejected().items()},
                                 **{k: int(v) for k, v in self.drops.items()}}, imu_count=self.imu_count,
                       gnss_count=self.gnss_count, stream=stream,
-                      model={"corrections_received": self.corrections, "corrections_fused": False})
+                      model={"corrections_received": self.corrections,
+                             **(self.learn.status() if self.learn is not None else
+                                {"learning": False, "corrections_fused": 0})}, **extra)
+
+
+def _finite(x: float, default: float) -> float:
+    x = float(x)
+    return x if math.isfinite(x) else default
+
+
+def alignment_map(al: dict) -> dict:
+    """Navigator.status()["alignment"] -> the nav_status ``alignment`` map (see zennav.messages.check_nav_status)."""
+    return {"state": str(al["state"]), "method": str(al.get("method") or ""),
+            "heading_std_rad": _finite(al["heading_std_rad"], 1e9),
+            "times_ns": {str(k): int(v) for k, v in al.get("times_ns", {}).items()},
+            "tilt_source": str(al.get("tilt_source") or ""), "gyrocompass": str(al.get("gyrocompass") or "")}
+
+
+def noise_map(noise: dict) -> dict:
+    """Navigator.status()["measurement_noise"] -> per source {R_diag, ratio, branch[, k, inflate, fading]}: the live
+    R diagonal [m^2 or (m/s)^2], its ratio to the reported R (None when R is not adapted) and the seed-001 branch
+    taken last ('inflate' / 'fading'; 'fixed' when adaptive R is off)."""
+    out = {}
+    for src, r in noise.items():
+        e = {"R_diag": [float(x) for x in np.diag(np.asarray(r["R"], dtype=float))]}
+        if "scale_diag" in r:
+            e.update(ratio=[float(x) for x in r["scale_diag"]], branch=str(r.get("branch") or "none"),
+                     **{k: int(r[k]) for k in ("k", "inflate", "fading") if k in r})
+        else:
+            e.update(ratio=None, branch="fixed")
+        out[str(src)] = e
+    return out
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -202,6 +353,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gnss-id", default="0")
     p.add_argument("--solution-every", type=int, default=1, help="publish every N-th solution")
     p.add_argument("--queue", type=int, default=8192, help="sensor queue capacity (back-pressure beyond)")
+    p.add_argument("--learning", action="store_true",
+                   help="learning loop: publish learn/samples and learn/query, fuse learn/correction (off: the "
+                        "core runs exactly as the in-process replay)")
+    p.add_argument("--learn-targets", default="drift",
+                   help="comma-separated target variants to publish samples and queries for (position, velocity, "
+                        "drift)")
+    p.add_argument("--correction-max-age", type=float, default=1.0,
+                   help="fuse an answer only if its query is at most this old [s of data time]")
+    p.add_argument("--attitude-alignment", action="store_true",
+                   help="take roll/pitch from the attitude service during coarse alignment (heading unknown)")
+    p.add_argument("--attitude-tilt-std", type=float, default=1.0,
+                   help="1-sigma [deg] credited to the attitude service's at-rest roll/pitch for coarse alignment")
     return add_bus_args(p)
 
 
@@ -223,8 +386,18 @@ def main(argv=None) -> int:
         else:
             pubs[kind].put(msg)
 
+    learn = None
+    if args.learning:
+        from zennav.nav.learning import TARGETS
+
+        targets = [t.strip() for t in args.learn_targets.split(",") if t.strip()]
+        if not targets or not set(targets) <= set(TARGETS):
+            raise SystemExit(f"--learn-targets: choose from {TARGETS}")
+        pubs["sample"] = bus.publisher(k.learn_samples())
+        pubs["query"] = bus.publisher(k.learn_query())
+        learn = LearningLink(publish, run.log, targets, args.correction_max_age)
     node = InsNode(publish, run.log, args.solution_every, on_state=lambda d: setattr(run, "detail", d),
-                   bus_rejected=bus.rejected_counts)
+                   bus_rejected=bus.rejected_counts, learning=learn)
     imu_key, gnss_key, stream_key = k.imu(args.imu_id), k.gnss(args.gnss_id), k.stream()
 
     def on_sensor(key, msg, recv_ns):
@@ -233,10 +406,15 @@ def main(argv=None) -> int:
 
     def counters():
         return {"imu": node.imu_count, "gnss": node.gnss_count, "solutions": node.sol_count,
-                **{f"drop_{a}": b for a, b in node.drops.items()}}
+                **{f"drop_{a}": b for a, b in node.drops.items()},
+                **({f"learn_{a}": b for a, b in dict(learn.counts).items()} if learn is not None else {})}
 
     run.counters = counters
     bus.subscribe(k.sensors(), on_sensor, channel="fifo", capacity=args.queue, name="sensors")
+    if args.attitude_alignment:
+        tilt_std = math.radians(args.attitude_tilt_std)
+        bus.subscribe(k.attitude(), lambda key, msg, recv_ns: node.on_attitude(msg, tilt_std), channel="ring",
+                      capacity=16, name="attitude")
     bus.subscribe(k.learn_correction(), lambda key, msg, recv_ns: node.on_correction(key, msg), channel="fifo", name="correction")
     run.ready("running", "waiting for a sensor stream")
     try:

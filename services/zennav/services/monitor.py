@@ -3,13 +3,16 @@
 Wiring table
     subscribes <base>/**                 every sample (ring channel: a slow monitor never slows the pipeline)
                liveliness <base>/@alive/*  which services are up
-    queries    svc/*/status, nav/status, learn/model/*   latest values at start (late joiner)
+    queries    svc/*/status, nav/status, attitude, learn/model/*   latest values at start (late joiner)
     publishes  svc/<name>/status         its own heartbeat (when run as a service)
 
 Per key: message count and rate, lag publish->receive (wall clock, from the message's pub_ns), drops
 (sequence gaps per publisher), rejections by reason (this monitor's own validator). Per service: alive or
 not, state and detail from its status heartbeat, its own rejection counters. Navigation: GNSS state, counts,
-stream progress; innovation test ratios per aiding source; the live model version per model name.
+stream progress, alignment (state, method, heading 1-sigma, when each state began) and the live measurement
+noise R per GNSS source (diagonal, ratio to the reported R, adaptive branch; adaptive on/off); innovation test
+ratios per aiding source; attitude (roll/pitch/yaw, gyro bias, rejection weight, whether the earth and
+transport rate is applied); the live model version per model name.
 
 Drops are seen from the monitor: if the monitor itself falls behind by more than its ring capacity, the
 samples it skipped count as drops too (the report says so under "monitor_ring").
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import threading
@@ -26,6 +30,8 @@ from collections import Counter, deque
 
 from zennav import messages as M
 from zennav.service import ServiceRunner, add_bus_args
+
+DEG_PER_H = 180.0 / math.pi * 3600.0  # [deg/h] per [rad/s]
 
 
 class KeyStats:
@@ -102,9 +108,19 @@ class MonitorState:
                                              "counters": msg["counters"], "rejected": msg["rejected"],
                                              "wall_ns": msg["t_ns"]}
         elif schema == "nav_status":
-            self.nav = {"t_ns": msg["t_ns"], "gnss_state": msg["gnss_state"], "imu_count": msg["imu_count"],
+            keep = {k: v for k, v in self.nav.items() if k.startswith("solution_")}
+            self.nav = {**keep, "t_ns": msg["t_ns"], "gnss_state": msg["gnss_state"], "imu_count": msg["imu_count"],
                         "gnss_count": msg["gnss_count"], "counters": msg["counters"], "rejected": msg["rejected"],
                         "stream": msg["stream"], "model": msg["model"]}
+            al = msg.get("alignment")
+            if al is not None:  # optional fields (older ins: absent)
+                self.nav["alignment"] = {**al, "heading_std_deg": round(math.degrees(al["heading_std_rad"]), 4),
+                                         "times_s": {s: round((t - al["times_ns"].get("coarse", t)) / 1e9, 3)
+                                                     for s, t in al["times_ns"].items()}}
+            if msg.get("adaptive_r") is not None:
+                self.nav["adaptive_r"] = msg["adaptive_r"]
+            if msg.get("measurement_noise") is not None:
+                self.nav["measurement_noise"] = msg["measurement_noise"]
         elif schema == "nav_solution":
             self.nav["solution_gnss_state"] = msg["gnss_state"]
             self.nav["solution_t_ns"] = msg["t_ns"]
@@ -125,8 +141,11 @@ class MonitorState:
                 self.models[msg["name"]] = {"version": msg["version"], "kind": msg["kind"],
                                             "created_t_ns": msg["created_t_ns"], "metrics": msg["metrics"]}
         elif schema == "attitude":
-            self.attitude = {"t_ns": msg["t_ns"], "euler_deg": [x * 57.29577951308232 for x in msg["euler"]],
-                             "weight": msg["weight"]}
+            w_in = msg.get("omega_in_n")
+            self.attitude = {"t_ns": msg["t_ns"], "q_nb": msg["q_nb"],
+                             "euler_deg": [x * 57.29577951308232 for x in msg["euler"]],
+                             "gyro_bias_dph": [x * DEG_PER_H for x in msg["gyro_bias"]], "weight": msg["weight"],
+                             "omega_in_n_dph": None if w_in is None else [x * DEG_PER_H for x in w_in]}
         elif schema == "correction":
             self.correction = {"t_ns": msg["t_ns"], "model": msg["model"], "version": msg["version"]}
 
@@ -185,6 +204,22 @@ def format_table(snap: dict) -> str:
     if nav:
         lines += ["", f"NAV  gnss {nav.get('gnss_state')}  imu {nav.get('imu_count')}  gnss {nav.get('gnss_count')}  "
                       f"stream {nav.get('stream', {}).get('dataset', '')} done={nav.get('stream', {}).get('done')}"]
+        al = nav.get("alignment")
+        if al:
+            times = ", ".join(f"{s} {t:.1f} s" for s, t in al["times_s"].items())
+            lines.append(f"  alignment {al['state']:<8} method {al['method'] or '-'}  heading 1-sigma "
+                         f"{al['heading_std_deg']:.3f} deg  tilt from {al['tilt_source'] or '-'}  ({times})")
+        if "adaptive_r" in nav:
+            lines.append(f"  adaptive R {'on' if nav['adaptive_r'] else 'off'}")
+        for src, r in (nav.get("measurement_noise") or {}).items():
+            ratio = "-" if r["ratio"] is None else "[" + ", ".join(f"{x:.2f}" for x in r["ratio"]) + "]"
+            lines.append(f"  R {src:<10} diag [{', '.join(f'{x:.3g}' for x in r['R_diag'])}]  R/reported {ratio}  "
+                         f"branch {r['branch']}")
+    att = snap["attitude"]
+    if att:
+        lines.append(f"ATT  roll/pitch/yaw {' '.join(f'{x:.2f}' for x in att['euler_deg'])} deg  gyro bias "
+                     f"{' '.join(f'{x:.1f}' for x in att['gyro_bias_dph'])} deg/h  weight {att['weight']:.2f}  "
+                     f"earth+transport rate {'applied' if att.get('omega_in_n_dph') and any(att['omega_in_n_dph']) else 'off'}")
     for src, a in snap["aid"].items():
         lines.append(f"  aid {src:<10} n {a['count']:<7} fused {a['fused']:<7} test ratio last {a['last_test_ratio']} "
                      f"p50 {a['p50_test_ratio']} max {a['max_test_ratio']}  rejected {a['rejected']}")
@@ -203,6 +238,16 @@ def format_table(snap: dict) -> str:
 
 def _fmt(x):
     return "-" if x is None else f"{x:.3f}"
+
+
+def _query_latest(run, state: MonitorState, selectors) -> None:
+    """Late joiner: the latest values served by the publishers' queryables, fed like live samples."""
+    for sel in selectors:
+        try:
+            for key, payload in run.bus.get(sel, timeout=1.0):
+                state.on_sample(key, payload, time.time_ns())
+        except Exception as e:
+            run.log.debug("query %s failed: %s", sel, e)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -227,18 +272,19 @@ def main(argv=None) -> int:
     state = MonitorState(k)
     run.bus.subscribe(k.all(), state.on_sample, validate=False, channel="ring", capacity=args.ring, name="all")
     run.bus.watch_alive(state.on_alive)
-    for sel in (k.svc_status(), k.nav_status(), k.learn_model()):
-        try:
-            for key, payload in run.bus.get(sel, timeout=1.0):
-                state.on_sample(key, payload, time.time_ns())
-        except Exception as e:
-            run.log.debug("query %s failed: %s", sel, e)
+    _query_latest(run, state, (k.svc_status(), k.nav_status(), k.attitude(), k.learn_model()))
     run.counters = lambda: {"keys": len(state.per_key)}
     try:
         if announce:
             run.ready("running", "watching " + k.all())
         if args.once:
             run.wait(args.duration)
+            # a peer found by gossip after the first queries went out: ask again for what is still missing
+            # (only where nothing came, so no sample is seen twice)
+            missing = [sel for sel, have in ((k.nav_status(), state.nav.get("t_ns")), (k.attitude(), state.attitude),
+                                             (k.learn_model(), state.models)) if not have]
+            missing += [k.svc_status(s) for s, up in sorted(state.alive.items()) if up and s not in state.services]
+            _query_latest(run, state, missing)
             snap = state.snapshot()
             snap["window_s"] = args.duration
             print(json.dumps(snap, indent=1) if args.json else format_table(snap), flush=True)

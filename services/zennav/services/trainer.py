@@ -1,24 +1,278 @@
-"""trainer service (issue 6): collects learn/samples while GNSS is good, retrains ANFIS / Elman and publishes
-versioned parameter sets on learn/model/<name> (the only process that imports torch).
+"""trainer service (issue 6, DESIGN.md sections 5 and 6): collects the ins's training samples per target variant,
+retrains ANFIS by the hybrid learner (least squares for the consequents + Fletcher-Reeves CG for the premises,
+zennav.learn.anfis_torch.fit_anfis) and publishes versioned parameter sets. The only zennav process that imports
+torch; it trains on the GPU when torch sees one.
 
-Wiring table (planned)
-    subscribes <base>/learn/samples        training pairs from the ins service
-    publishes  <base>/learn/model/<name>   model_params (latest served to late joiners)
+Wiring table
+    subscribes <base>/learn/samples        learn_sample from the ins (variants outside --targets are counted, ignored)
+    publishes  <base>/learn/model/<name>   model_params, the wire form of a zennav.learn.paramset set (name
+                                           <prefix>-<target>, e.g. anfis-drift; the latest is served to late
+                                           joiners by the publisher's queryable)
+               <base>/svc/trainer/status   samples per target, trainings, versions, link losses, device
 
-NOT IMPLEMENTED yet: the ins service does not emit training samples and the training schedule is issue 6's
-work. The service starts, announces liveliness, reports state 'not_implemented' and counts what it ignores.
+Rule count: --n-rules, reduced while samples are few to at most one consequent parameter per 4 samples per
+output (n_rules * (n_in + 1) <= N / 4), so that the training RMSE, the predictions' 1-sigma, is not that of an
+interpolating fit.
+
+Schedule: per target, the newest --window samples are kept; a training starts when at least --min-samples are
+held and either --retrain-samples new ones arrived or --retrain-every seconds passed since the last training
+with new samples. Training runs on its own thread, so samples keep arriving meanwhile. The set's metrics carry
+the target, the sample count and time span, the device, epochs, wall time and the training RMSE per output
+(the predictor's 1-sigma).
+
+Versions: one integer per model name, +1 per training. At start the trainer asks for the latest set of each of
+its names on the bus and continues above it (else from --first-version), so a restarted trainer's sets are
+newer than those a predictor may still hold, as long as some process still serves them.
+
+Remote deployment: run it as a zenoh client of the edge router (``--mode client --connect tcp/<edge>:7447``,
+deploy/zenoh-client.json5: waits for the router, reconnects for ever). When the link drops the trainer keeps
+running and keeps its samples (none arrive meanwhile); the edge keeps predicting with the last set. On
+reconnection (seen as the router reappearing in the session's info) it re-publishes its latest set of each
+model, so a set trained during the cut is not lost; the next training then follows the schedule.
 """
 from __future__ import annotations
 
+import argparse
 import sys
+import threading
+import time
+from collections import Counter, deque
 
-from zennav.service import not_implemented_main
+import numpy as np
 
-REASON = "trainer not implemented yet (issue 6): no training loop; learn/samples are counted and ignored"
+from zennav import messages as M
+from zennav.learn import paramset
+from zennav.nav.learning import FEATURES, TARGETS
+from zennav.service import ServiceRunner, add_bus_args
+
+
+class TrainerNode:
+    """The transport-free part of the trainer: ``on_sample(msg)`` from the bus thread, ``train_due()`` /
+    ``train(target)`` from the training thread; ``publish(name, msg)`` sends a model_params message."""
+
+    def __init__(self, publish, log, targets=("drift",), *, prefix: str = "anfis", window: int = 5000,
+                 min_samples: int = 200, retrain_samples: int = 500, retrain_every_s: float = 60.0,
+                 n_rules: int = 8, max_epochs: int = 30, seed: int = 0, device=None, first_version: int = 1):
+        self.publish = publish
+        self.log = log
+        self.targets = tuple(targets)
+        self.names = {t: M.check_chunk(f"{prefix}-{t}", "model name") for t in self.targets}
+        self.window, self.min_samples = int(window), int(min_samples)
+        self.retrain_samples, self.retrain_every_s = int(retrain_samples), float(retrain_every_s)
+        self.n_rules, self.max_epochs, self.seed = int(n_rules), int(max_epochs), int(seed)
+        self.device = device
+        self.cv = threading.Condition()
+        self.data = {t: deque(maxlen=self.window) for t in self.targets}  # (t_ns, features, value)
+        self.new = {t: 0 for t in self.targets}
+        self.last_train = {t: time.monotonic() for t in self.targets}
+        self.version = {t: int(first_version) - 1 for t in self.targets}
+        self.counts: Counter[str] = Counter()
+        self.last = {}  # target -> metrics of the last training
+        self.busy = ""
+
+    # ------------------------------------------------------------------ samples
+    def on_sample(self, msg: dict) -> None:
+        t = msg["variant"]
+        if t not in self.data:
+            self.counts["ignored_variant"] += 1
+            return
+        if len(msg["features"]) != len(FEATURES[t]) or len(msg["target"]) != 2:
+            self.counts["ignored_shape"] += 1
+            return
+        with self.cv:
+            self.data[t].append((msg["t_ns"], msg["features"], msg["target"]))
+            self.new[t] += 1
+            self.counts[f"samples_{t}"] += 1
+            if self.new[t] >= self.retrain_samples:
+                self.cv.notify()
+
+    def seen_version(self, target: str, version: int) -> None:
+        """A set of this model already exists on the bus with this version: continue above it."""
+        with self.cv:
+            self.version[target] = max(self.version[target], int(version))
+
+    # ------------------------------------------------------------------ schedule
+    def due(self, now: float | None = None) -> list[str]:
+        now = time.monotonic() if now is None else now
+        out = []
+        for t in self.targets:
+            n, held = self.new[t], len(self.data[t])
+            if n > 0 and held >= self.min_samples and (
+                    n >= self.retrain_samples or (self.retrain_every_s > 0 and now - self.last_train[t] >= self.retrain_every_s)):
+                out.append(t)
+        return out
+
+    def wait_due(self, tick: float = 0.5) -> list[str]:
+        """The targets due for training, after waiting up to tick seconds for one (the caller loops)."""
+        with self.cv:
+            due = self.due()
+            if not due:
+                self.cv.wait(tick)
+                due = self.due()
+        return due
+
+    def train(self, target: str) -> dict | None:
+        """Fit on a snapshot of the target's window and publish the set; returns the published message."""
+        from zennav.learn.anfis_torch import TrainConfig, fit_anfis
+
+        with self.cv:
+            rows = list(self.data[target])
+            self.new[target] = 0
+            self.last_train[target] = time.monotonic()
+        t_ns = np.array([r[0] for r in rows], dtype=np.int64)
+        x = np.array([r[1] for r in rows], dtype=float)
+        y = np.array([r[2] for r in rows], dtype=float)
+        self.busy = f"training {target} on {len(rows)} samples"
+        # at most one consequent parameter per 4 samples (per output): fewer rules while samples are few, so
+        # that the training RMSE (the predictor's 1-sigma) is not that of an interpolating fit
+        n_rules = max(1, min(self.n_rules, len(x) // (4 * (x.shape[1] + 1))))
+        try:
+            fit = fit_anfis(x, y, n_rules=n_rules, device=self.device,
+                            config=TrainConfig(method="hybrid_cg", max_epochs=self.max_epochs, seed=self.seed))
+        except Exception:
+            self.counts["train_errors"] += 1
+            self.log.exception("training %s on %d samples failed; the last set stays published", target, len(x))
+            return None
+        finally:
+            self.busy = ""
+        with self.cv:
+            self.version[target] += 1
+            version = self.version[target]
+        metrics = {**fit.metrics, "target": target, "samples": int(len(x)), "t_first_ns": int(t_ns.min()),
+                   "t_last_ns": int(t_ns.max()), "device": str(self.device or "cpu"), "n_rules": int(len(fit.arrays["rules"]))}
+        name = self.names[target]
+        msg = M.model_params_msg(paramset.build(name, version, fit.arrays, fit.norm, metrics))
+        self.publish(name, msg)
+        self.counts[f"trainings_{target}"] += 1
+        self.last[target] = {"version": version, "samples": len(x), "epochs": fit.metrics["epochs"],
+                             "wall_s": round(fit.metrics["wall_s"], 3),
+                             "train_rmse": [round(v, 4) for v in fit.metrics["train_rmse"]]}
+        self.log.info("published %s v%d: %d samples, %d epochs (%s) in %.2f s on %s, train rmse %s", name, version,
+                      len(x), fit.metrics["epochs"], fit.metrics["stop_reason"], fit.metrics["wall_s"],
+                      self.device or "cpu", self.last[target]["train_rmse"])
+        return msg
+
+    # ------------------------------------------------------------------ status
+    def counters(self) -> dict:
+        with self.cv:
+            c = dict(self.counts)
+            c.update({f"held_{t}": len(d) for t, d in self.data.items()})
+            c.update({f"version_{t}": v for t, v in self.version.items()})
+        return c
+
+    def detail(self) -> str:
+        last = dict(self.last)
+        s = "; ".join(f"{self.names[t]} v{m['version']} ({m['samples']} samples, rmse {m['train_rmse']})"
+                      for t, m in sorted(last.items())) or "no set published yet"
+        return f"{s}; device {self.device or 'cpu'}" + (f"; {self.busy}" if self.busy else "")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS hybrid "
+                                "LSE + Fletcher-Reeves CG on the ins's samples, versioned parameter sets")
+    p.add_argument("--targets", default="drift", help=f"comma-separated target variants to learn ({', '.join(TARGETS)})")
+    p.add_argument("--prefix", default="anfis", help="model name prefix: sets are published as <prefix>-<target>")
+    p.add_argument("--window", type=int, default=5000, help="newest samples kept per target")
+    p.add_argument("--min-samples", type=int, default=200, help="no training below this many samples")
+    p.add_argument("--retrain-samples", type=int, default=500, help="retrain after this many new samples")
+    p.add_argument("--retrain-every", type=float, default=60.0,
+                   help="... or after this many seconds if any new sample arrived (0: sample count only)")
+    p.add_argument("--n-rules", type=int, default=8, help="ANFIS rules (k-means rule base)")
+    p.add_argument("--max-epochs", type=int, default=30, help="hybrid epochs (LSE + FR-CG) per training")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default=None, help="torch device (default: cuda when torch sees one, else cpu)")
+    p.add_argument("--torch-threads", type=int, default=0,
+                   help="torch CPU threads (0: torch's default); 1 beside the real-time services on one host")
+    p.add_argument("--first-version", type=int, default=1, help="version of the first set if none is found on the bus")
+    p.add_argument("--link-poll", type=float, default=0.5, help="period [s] of the link (router/peer) check")
+    p.add_argument("--close-timeout", type=float, default=3.0, help="longest wait [s] for the session to close")
+    return add_bus_args(p)
 
 
 def main(argv=None) -> int:
-    return not_implemented_main("trainer", REASON, argv, ["{base}/learn/samples"])
+    args = build_parser().parse_args(argv)
+    targets = [t.strip() for t in args.targets.split(",") if t.strip()]
+    if not targets or not set(targets) <= set(TARGETS):
+        raise SystemExit(f"--targets: choose from {TARGETS}")
+    run = ServiceRunner("trainer", args, serial=False)
+    from zennav.learn.anfis_torch import default_device  # torch: this process only
+
+    if args.torch_threads > 0:
+        import torch
+
+        torch.set_num_threads(args.torch_threads)
+    device = args.device or str(default_device())
+    k = run.keys
+    bus = run.bus
+    pubs: dict[str, object] = {}
+    pub_lock = threading.Lock()
+
+    def publish(name: str, msg: dict) -> None:
+        with pub_lock:
+            p = pubs.get(name)
+            if p is None:
+                p = pubs[name] = bus.publisher(k.learn_model(name))
+            p.put(msg)
+
+    node = TrainerNode(publish, run.log, targets, prefix=args.prefix, window=args.window,
+                       min_samples=args.min_samples, retrain_samples=args.retrain_samples,
+                       retrain_every_s=args.retrain_every, n_rules=args.n_rules, max_epochs=args.max_epochs,
+                       seed=args.seed, device=device, first_version=args.first_version)
+    for t, name in node.names.items():  # continue the version numbering of a set already on the bus
+        for _key, msg in bus.get_latest(k.learn_model(name), timeout=2.0):
+            if msg["name"] == name:
+                node.seen_version(t, msg["version"])
+    link = {"up": True, "losses": 0, "republished": 0}
+    run.counters = lambda: {**node.counters(), "link_losses": link["losses"], "republished": link["republished"]}
+    bus.subscribe(k.learn_samples(), lambda key, msg, recv_ns: node.on_sample(msg), channel="fifo", capacity=8192,
+                  name="samples")
+
+    def connected() -> bool:
+        return bool(bus.routers() or bus.peers())
+
+    def watch_link() -> None:  # a client's session reconnects by itself; re-publish the latest sets when it does
+        while not run.wait(args.link_poll):
+            up = connected()
+            if up == link["up"]:
+                continue
+            link["up"] = up
+            if not up:
+                link["losses"] += 1
+                run.log.warning("link to the router lost; training goes on with the %s samples held",
+                                sum(len(d) for d in node.data.values()))
+                continue
+            with pub_lock:
+                for p in pubs.values():
+                    if p.latest is not None:
+                        p.put_raw(p.latest)
+                        link["republished"] += 1
+            run.log.info("link to the router restored; latest sets re-published (%s)", ", ".join(pubs) or "none yet")
+
+    def train_loop() -> None:
+        while not run.stopping:
+            for t in node.wait_due():
+                node.train(t)
+                run.detail = node.detail()
+
+    link["up"] = connected()
+    threads = [threading.Thread(target=f, name=f"zennav-{f.__name__}", daemon=True) for f in (watch_link, train_loop)]
+    for th in threads:
+        th.start()
+    run.ready("running", node.detail())
+    try:
+        run.wait()
+    finally:
+        run.stop()
+        with node.cv:
+            node.cv.notify_all()
+        # a client whose router is unreachable can block in the zenoh session's close (it is reconnecting): bound it
+        closer = threading.Thread(target=run.close, name="zennav-close", daemon=True)
+        closer.start()
+        closer.join(args.close_timeout)
+        if closer.is_alive():
+            run.log.warning("zenoh session close still blocked after %.0f s (link down?); exiting anyway",
+                            args.close_timeout)
+    return 0
 
 
 if __name__ == "__main__":

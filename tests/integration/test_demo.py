@@ -1,0 +1,82 @@
+"""`zennav demo` end to end: the process set of deploy/demo.yaml on loopback over a short simulated drive."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+ZENNAV = str(Path(sys.executable).parent / "zennav")
+DEMO_YAML = Path(__file__).resolve().parents[2] / "deploy" / "demo.yaml"
+ENV = {k: v for k, v in os.environ.items() if not k.startswith("ZENNAV_")}
+
+
+def _demo(*args, timeout=300) -> tuple[subprocess.CompletedProcess, list[int]]:
+    """Run `zennav demo ARGS`; returns the result and the pids of the processes its launcher started."""
+    p = subprocess.run([ZENNAV, "demo", *map(str, args)], capture_output=True, text=True, timeout=timeout, env=ENV)
+    pids = [int(x) for x in re.findall(r"started \S+ \(pid (\d+)\)", p.stdout)]
+    return p, pids
+
+
+def _running(pids: list[int]) -> list[str]:
+    """`ps` lines of those pids that still run (zombies excluded)."""
+    out = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-p", ",".join(map(str, pids))], capture_output=True,
+                         text=True).stdout
+    return [line for line in out.splitlines() if line.split() and not line.split()[1].startswith("Z")]
+
+
+def test_demo_short_drive(tmp_path):
+    """A 120 s drive with a 30 s outage: exit 0, every output written, the distributed solution (as printed,
+    in metrics.json and in the recording) equals the in-process replay, and no process is left behind."""
+    from zennav.datasets.registry import load_dataset
+    from zennav.recording import read_mcap
+    from zennav.replay import run_replay
+
+    out = tmp_path / "demo"
+    p, pids = _demo("--duration", 120, "--outage", "60:30", "--out", out)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert len(pids) == 8, p.stdout
+    assert not _running(pids)
+    for name in ("demo.mcap", "nav.txt", "nav.csv", "metrics.json", "horizontal_error.png", "track.png",
+                 "launch.log", "learned-elman-inprocess/nav.txt", "learned-elman-inprocess/metrics.json"):
+        assert (out / name).stat().st_size > 0, name
+    assert "identical, bit for bit" in p.stdout
+    assert "IN-PROCESS" in p.stdout and "outage 60s+30s" in p.stdout
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["pipeline"]["vs_in_process"]["bit_for_bit"]
+    assert m["outages"][0]["max_horizontal_m"] > 0
+
+    ref = run_replay(load_dataset("sim:car", duration_s=120.0), outages=[(60.0, 30.0)])
+    sols = [msg for _k, msg, _p, _t in read_mcap(out / "demo.mcap", [r"/nav/solution$"])]
+    assert [s["seq"] for s in sols] == list(range(len(ref.t_ns)))
+    assert np.array_equal([s["t_ns"] for s in sols], ref.t_ns)
+    for field, want in (("llh", ref.llh), ("v_n", ref.v_n), ("q_nb", ref.q_nb)):
+        assert np.abs(np.array([s[field] for s in sols]) - want).max() <= 1e-9, field
+
+
+@pytest.mark.parametrize("how", ["crashes", "never comes up"])
+def test_demo_fails_cleanly_when_a_service_does_not_come_up(tmp_path, how):
+    """An ins that exits at once, or one that never announces itself: the demo exits 1 with a message that
+    names it, and every process it started is stopped."""
+    spec = yaml.safe_load(DEMO_YAML.read_text())
+    ins = next(s for s in spec["services"] if s["name"] == "ins")
+    if how == "crashes":
+        ins["command"] = ["{python}", "-c", "import sys; sys.exit(3)"]
+        expect = "ins exited with code 3"
+    else:
+        ins["command"] = ["{python}", "-c", "import signal; signal.pause()"]
+        spec["up_timeout_s"] = 5
+        expect = "timeout: ingest waits for ['ins']"
+    launch_file = tmp_path / "broken.yaml"
+    launch_file.write_text(yaml.safe_dump(spec))
+    p, pids = _demo("--duration", 60, "--outage", "20:10", "--out", tmp_path / "demo", "--launch-file", launch_file,
+                    timeout=120)
+    assert p.returncode == 1, p.stdout + p.stderr
+    assert "demo failed:" in p.stderr and expect in p.stderr, p.stderr
+    assert pids and not _running(pids)
