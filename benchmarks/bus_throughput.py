@@ -88,12 +88,7 @@ def sink_main(argv) -> int:
                                    "expected_imu": msg["counts"]["imu"], "received": st["n"]}))
 
     run.bus.subscribe(run.keys.sensors(), on, channel="fifo", capacity=8192)
-    run.ready()
-    try:
-        run.wait()
-    finally:
-        run.close()
-    return 0
+    return run.serve()
 
 
 def run_case(kind: str, via_router: bool, duration: float, speed: str, want_latency: bool) -> dict:

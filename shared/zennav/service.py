@@ -106,6 +106,15 @@ class ServiceRunner:
         """Block until stopped (signal or stop()); True if stopped."""
         return wait_event(self._stop, timeout)
 
+    def serve(self, state: str = "running", detail: str = "") -> int:
+        """Announce the service as ready, block until it is stopped, close it; the exit code of main()."""
+        self.ready(state, detail)
+        try:
+            self.wait()
+        finally:
+            self.close()
+        return 0
+
     def close(self) -> None:
         self._stop.set()
         try:
@@ -115,29 +124,6 @@ class ServiceRunner:
             pass
         self.bus.close()
         self.log.info("%s stopped", self.name)
-
-
-def not_implemented_main(service: str, reason: str, argv=None, subscribe: list[str] | None = None) -> int:
-    """A service whose core has not landed: it starts, announces liveliness, publishes state
-    'not_implemented' with the reason and logs it, and processes nothing. It never pretends."""
-    p = add_bus_args(argparse.ArgumentParser(prog=f"zennav-{service}", description=f"zennav {service} service"))
-    args, _unknown = p.parse_known_args(argv)
-    run = ServiceRunner(service, args)
-    seen = {"messages_ignored": 0}
-
-    def ignore(key, msg, recv_ns):
-        seen["messages_ignored"] += 1
-
-    for k in subscribe or []:
-        run.bus.subscribe(k.format(base=run.keys.base), ignore, channel="ring")
-    run.counters = lambda: dict(seen)
-    run.ready("not_implemented", reason)
-    run.log.warning("%s is NOT IMPLEMENTED: %s", service, reason)
-    try:
-        run.wait()
-    finally:
-        run.close()
-    return 0
 
 
 def wall_ns() -> int:

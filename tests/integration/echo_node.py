@@ -24,12 +24,7 @@ def main(argv=None) -> int:
 
     run.counters = lambda: dict(n)
     run.bus.subscribe(args.inp, on, channel="fifo")
-    run.ready()
-    try:
-        run.wait()
-    finally:
-        run.close()
-    return 0
+    return run.serve()
 
 
 if __name__ == "__main__":

@@ -254,12 +254,7 @@ def main(argv=None) -> int:
     # every sensor message of the live stream goes through the cseq merge (GNSS included, or it would leave gaps)
     run.bus.subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
                       capacity=args.queue, name="sensors")
-    run.ready("running", f"waiting for a sensor stream; gains from {origin}")
-    try:
-        run.wait()
-    finally:
-        run.close()
-    return 0
+    return run.serve("running", f"waiting for a sensor stream; gains from {origin}")
 
 
 if __name__ == "__main__":

@@ -416,12 +416,7 @@ def main(argv=None) -> int:
         bus.subscribe(k.attitude(), lambda key, msg, recv_ns: node.on_attitude(msg, tilt_std), channel="ring",
                       capacity=16, name="attitude")
     bus.subscribe(k.learn_correction(), lambda key, msg, recv_ns: node.on_correction(key, msg), channel="fifo", name="correction")
-    run.ready("running", "waiting for a sensor stream")
-    try:
-        run.wait()
-    finally:
-        run.close()
-    return 0
+    return run.serve("running", "waiting for a sensor stream")
 
 
 if __name__ == "__main__":

@@ -222,12 +222,7 @@ def main(argv=None) -> int:
     if not args.no_fetch:  # late joiner: the latest set of each model (duplicates of a publication are ignored)
         for key, msg in bus.get_latest(k.learn_model(), timeout=2.0):
             node.on_model(key, msg, time.time_ns(), latency=False)
-    run.ready("running", node.detail())
-    try:
-        run.wait()
-    finally:
-        run.close()
-    return 0
+    return run.serve("running", node.detail())
 
 
 if __name__ == "__main__":
