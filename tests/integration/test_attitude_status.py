@@ -7,18 +7,7 @@ import json
 
 import numpy as np
 
-from zennav_harness import Collector, wait_until
-
-
-def _json_lines(proc) -> list[dict]:
-    out = []
-    for line in proc.text().splitlines():
-        if line.startswith("{"):
-            try:
-                out.append(json.loads(line))
-            except json.JSONDecodeError:
-                pass
-    return out
+from zennav_harness import Collector, json_lines, wait_until
 
 
 def _once(cluster, name: str) -> dict:
@@ -70,13 +59,13 @@ def test_attitude_service_equals_core_batch_with_ins_rate_and_monitor_shows_it(c
           f"received at {n / ((recv[-1] - recv[0]) / 1e9):.0f}/s")
 
     def counted():
-        s = next((s for s in reversed(_json_lines(mon)) if s["services"].get("attitude", {}).get("counters", {})
+        s = next((s for s in reversed(json_lines(mon)) if s["services"].get("attitude", {}).get("counters", {})
                   .get("done")), None)
         return s
     snap = wait_until(counted, 20, "monitor: attitude service done")
     c = snap["services"]["attitude"]["counters"]
     assert c["published"] == n and c["imu"] == n and c["rate_applied"] == applied.sum()
-    live = [s for s in _json_lines(mon) if s["attitude"]]
+    live = [s for s in json_lines(mon) if s["attitude"]]
     assert live and max(s["keys"].get(k.attitude(), {}).get("rate_hz", 0) for s in live) > 200
     print(f"attitude service: {c['cost_us_per_sample']} us per sample in the filter + message, "
           f"{c['publish_us_per_sample']} us publishing (incl. back-pressure)")
@@ -102,11 +91,11 @@ def test_monitor_shows_alignment_coarse_fine_aligned_and_live_r(cluster):
     assert ing.wait(60) == 0
 
     def final_snapshot():
-        s = next((s for s in reversed(_json_lines(mon)) if s["nav"].get("stream", {}).get("done")), None)
+        s = next((s for s in reversed(json_lines(mon)) if s["nav"].get("stream", {}).get("done")), None)
         return s
     last = wait_until(final_snapshot, 20, "monitor: the stream's end")
     seen = []
-    for s in _json_lines(mon):
+    for s in json_lines(mon):
         st = (s["nav"].get("alignment") or {}).get("state")
         if st and (not seen or seen[-1] != st):
             seen.append(st)

@@ -9,7 +9,7 @@ import numpy as np
 
 from zennav import messages as M
 
-from zennav_harness import Collector, free_port, wait_until
+from zennav_harness import Collector, free_port, json_lines, wait_until
 
 ECHO = str(__import__("pathlib").Path(__file__).with_name("echo_node.py"))
 
@@ -71,18 +71,6 @@ def test_pubsub_round_trip_through_router(cluster):
     assert cluster.bus.routers(), "the test session should be connected to the router"
 
 
-def _monitor_lines(proc):
-    out = []
-    for line in proc.text().splitlines():
-        line = line.strip()
-        if line.startswith("{"):
-            try:
-                out.append(json.loads(line))
-            except json.JSONDecodeError:
-                pass
-    return out
-
-
 def test_monitor_reports_killed_service_down_then_up_and_stream_resumes(cluster):
     k = cluster.keys
     cluster.service("attitude")
@@ -92,7 +80,7 @@ def test_monitor_reports_killed_service_down_then_up_and_stream_resumes(cluster)
     att_key = k.attitude()
 
     def snap_where(pred):
-        lines = _monitor_lines(mon)
+        lines = json_lines(mon)
         return next((s for s in reversed(lines) if pred(s)), None)
 
     def up_and_streaming(s):

@@ -7,6 +7,7 @@ Every process started here is stopped (SIGTERM, then SIGKILL) at teardown, and i
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -19,6 +20,19 @@ from pathlib import Path
 import pytest
 
 PY = sys.executable
+
+
+def json_lines(proc) -> list[dict]:
+    """The JSON objects a process printed one per line so far (e.g. `zennav monitor --json`)."""
+    out = []
+    for line in proc.text().splitlines():
+        line = line.strip()
+        if line.startswith("{"):
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                pass
+    return out
 
 
 def free_port() -> int:
