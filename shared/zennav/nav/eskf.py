@@ -21,49 +21,68 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import earth
-from .rotation import skew
 from .types import ImuNoise
 
 N_STATES = 15
 POS, VEL, ATT, BG, BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
 
 
+# Positions of the entries of F that error_model fills, in the order it lists their values (row, column).
+_F_ENTRIES = (
+    [(0, 0), (0, 2), (1, 0), (1, 1), (1, 2)]  # F_rr
+    + [(0, 3), (1, 4), (2, 5)]  # I
+    + [(3, 0), (3, 2), (4, 0), (4, 2), (5, 0), (5, 2)]  # F_vr
+    + [(3 + i, 3 + j) for i in range(3) for j in range(3)]  # F_vv
+    + [(3, 7), (3, 8), (4, 6), (4, 8), (5, 6), (5, 7)]  # [f_n x]
+    + [(3 + i, 12 + j) for i in range(3) for j in range(3)]  # -C_nb
+    + [(6, 0), (6, 2), (7, 2), (8, 0), (8, 2)]  # F_pr
+    + [(6, 4), (7, 3), (8, 4)]  # F_pv
+    + [(6, 7), (6, 8), (7, 6), (7, 8), (8, 6), (8, 7)]  # -[omega_in_n x]
+    + [(6 + i, 9 + j) for i in range(3) for j in range(3)]  # C_nb
+    + [(9 + i, 9 + i) for i in range(6)]  # -1/tau of the bias Gauss-Markov processes
+)
+_F_FLAT = np.array([i * N_STATES + j for i, j in _F_ENTRIES])
+
+
 def error_model(lat: float, h: float, v_n, C_nb: np.ndarray, f_b, noise: ImuNoise) -> np.ndarray:
     """Continuous-time error dynamics matrix F (15x15) at latitude lat [rad], height h [m],
-    velocity v_n [m/s], attitude C_nb and specific force f_b [m/s^2, body]."""
+    velocity v_n [m/s], attitude C_nb and specific force f_b [m/s^2, body].
+
+    Scalar float arithmetic and one indexed assignment (this runs every covariance step of the live ins)."""
     vn, ve, vd = v_n
-    r_m, r_n = earth.radii(lat)
-    rmh, rnh = r_m + h, r_n + h
     s, c = math.sin(lat), math.cos(lat)
     t = s / c
+    sw = math.sqrt(1.0 - earth.E2 * s * s)
+    r_n = earth.A / sw
+    r_m = r_n * (1.0 - earth.E2) / (sw * sw)
+    rmh, rnh = r_m + h, r_n + h
+    rmh2, rnh2, rmnc2 = rmh * rmh, rnh * rnh, rmh * rnh * c * c
     w = earth.OMEGA_IE
-    g = earth.gravity(lat, h)
+    g = earth.gravity_sin2(s * s, h)
+    (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = C_nb.tolist()
+    fx, fy, fz = (float(x) for x in f_b)
+    fn, fe, fd = (c00 * fx + c01 * fy + c02 * fz, c10 * fx + c11 * fy + c12 * fz, c20 * fx + c21 * fy + c22 * fz)
+    # omega_in_n = omega_ie_n + omega_en_n
+    on, oe, od = w * c + ve / rnh, -vn / rmh, -w * s - ve * t / rnh
+    gb, ab = -1.0 / noise.gyro_bias_tau, -1.0 / noise.accel_bias_tau
     F = np.zeros((N_STATES, N_STATES))
-    F[0:3, 0:3] = [[-vd / rmh, 0.0, vn / rmh], [ve * t / rnh, -(vd + vn * t) / rnh, ve / rnh], [0.0, 0.0, 0.0]]
-    F[0:3, 3:6] = np.eye(3)
-    F[3:6, 0:3] = [
-        [-2 * ve * w * c / rmh - ve * ve / (rmh * rnh * c * c), 0.0, vn * vd / rmh**2 - ve * ve * t / rnh**2],
-        [2 * w * (vn * c - vd * s) / rmh + vn * ve / (rmh * rnh * c * c), 0.0, (ve * vd + vn * ve * t) / rnh**2],
-        [2 * w * ve * s / rmh, 0.0, -ve * ve / rnh**2 - vn * vn / rmh**2 + 2 * g / (math.sqrt(r_m * r_n) + h)],
+    F.ravel()[_F_FLAT] = [
+        -vd / rmh, vn / rmh, ve * t / rnh, -(vd + vn * t) / rnh, ve / rnh,
+        1.0, 1.0, 1.0,
+        -2 * ve * w * c / rmh - ve * ve / rmnc2, vn * vd / rmh2 - ve * ve * t / rnh2,
+        2 * w * (vn * c - vd * s) / rmh + vn * ve / rmnc2, (ve * vd + vn * ve * t) / rnh2,
+        2 * w * ve * s / rmh, -ve * ve / rnh2 - vn * vn / rmh2 + 2 * g / (math.sqrt(r_m * r_n) + h),
+        vd / rmh, -2 * (w * s + ve * t / rnh), vn / rmh,
+        2 * w * s + ve * t / rnh, (vd + vn * t) / rnh, 2 * w * c + ve / rnh,
+        -2 * vn / rmh, -2 * (w * c + ve / rnh), 0.0,
+        -fd, fe, fd, -fn, -fe, fn,
+        -c00, -c01, -c02, -c10, -c11, -c12, -c20, -c21, -c22,
+        -w * s / rmh, ve / rnh2, -vn / rmh2, -w * c / rmh - ve / rmnc2, -ve * t / rnh2,
+        1 / rnh, -1 / rmh, -t / rnh,
+        od, -oe, -od, on, oe, -on,
+        c00, c01, c02, c10, c11, c12, c20, c21, c22,
+        gb, gb, gb, ab, ab, ab,
     ]
-    F[3:6, 3:6] = [
-        [vd / rmh, -2 * (w * s + ve * t / rnh), vn / rmh],
-        [2 * w * s + ve * t / rnh, (vd + vn * t) / rnh, 2 * w * c + ve / rnh],
-        [-2 * vn / rmh, -2 * (w * c + ve / rnh), 0.0],
-    ]
-    F[3:6, 6:9] = skew(C_nb @ np.asarray(f_b))
-    F[3:6, 12:15] = -C_nb
-    F[6:9, 0:3] = [
-        [-w * s / rmh, 0.0, ve / rnh**2],
-        [0.0, 0.0, -vn / rmh**2],
-        [-w * c / rmh - ve / (rmh * rnh * c * c), 0.0, -ve * t / rnh**2],
-    ]
-    F[6:9, 3:6] = [[0.0, 1 / rnh, 0.0], [-1 / rmh, 0.0, 0.0], [0.0, -t / rnh, 0.0]]
-    omega_in_n = earth.omega_ie_n(lat) + earth.omega_en_n(lat, h, v_n)
-    F[6:9, 6:9] = -skew(omega_in_n)
-    F[6:9, 9:12] = C_nb
-    F[9:12, 9:12] = -np.eye(3) / noise.gyro_bias_tau
-    F[12:15, 12:15] = -np.eye(3) / noise.accel_bias_tau
     return F
 
 
@@ -85,9 +104,13 @@ def process_noise_psd(noise: ImuNoise) -> np.ndarray:
 def discretize(F: np.ndarray, q_psd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Transition Phi and process noise Qd over dt [s] (second-order Phi, trapezoidal Qd)."""
     Fdt = F * dt
-    Phi = np.eye(N_STATES) + Fdt + 0.5 * (Fdt @ Fdt)
-    PhiQ = Phi * q_psd  # Phi @ diag(q)
-    Qd = 0.5 * dt * (PhiQ @ Phi.T + np.diag(q_psd))
+    Phi = Fdt @ Fdt
+    Phi *= 0.5
+    Phi += Fdt
+    Phi.ravel()[:: N_STATES + 1] += 1.0
+    Qd = (Phi * q_psd) @ Phi.T  # Phi diag(q) Phi'
+    Qd.ravel()[:: N_STATES + 1] += q_psd
+    Qd *= 0.5 * dt
     return Phi, Qd
 
 
