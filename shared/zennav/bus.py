@@ -189,7 +189,7 @@ class Subscription:
             if validate:
                 value, reason = check(key, payload)
                 if value is None:
-                    self.bus._rejected(key, reason)
+                    self.bus.count_rejected(key, reason)
                     continue
             else:
                 value = payload
@@ -266,7 +266,8 @@ class Bus:
         self._subs.append(sub)
         return sub
 
-    def _rejected(self, key: str, reason: str) -> None:
+    def count_rejected(self, key: str, reason: str) -> None:
+        """Count (per reason code and key) and log a rejected message; reason is 'code: detail'."""
         code = reason.split(":", 1)[0]
         with self._rej_lock:
             self.rejected[code] += 1
@@ -296,7 +297,7 @@ class Bus:
         for key, payload in self.get(selector, timeout):
             msg, reason = v.check(key, payload)
             if msg is None:
-                self._rejected(key, reason)
+                self.count_rejected(key, reason)
             else:
                 out.append((key, msg))
         return out

@@ -4,7 +4,9 @@ A compensator takes the navigation engine's LearnSamples while GNSS is good and 
 while GNSS is lost with a predicted error rate and its 1-sigma (nav/learning.py). Two models:
 - "anfis" (seed 000): first-order Takagi-Sugeno ANFIS, k-means rule base, trained by the hybrid
   least-squares + Fletcher-Reeves CG learner on the newest samples when a prediction is first needed after
-  new samples arrived (i.e. at the start of each outage); predicts with the numpy forward pass.
+  new samples arrived (i.e. at the start of each outage); predicts with the numpy forward pass, and only for
+  features within `max_domain_excess` training standard deviations of the training range (as the predictor
+  service; a first-order TS model extrapolates without bound outside it).
 - "elman" (seed 002): Elman network trained online on a sliding window of the newest samples; predicts
   only while its training error is under its threshold.
 The 1-sigma of a prediction is the model's RMS training residual per output.
@@ -26,11 +28,13 @@ class AnfisCompensator:
     """ANFIS (hybrid LSE + FR-CG) over the newest `window` samples; retrains lazily when new samples arrived."""
 
     def __init__(self, target: str = "position", n_rules: int = 8, window: int = 2000, min_samples: int = 100,
-                 max_epochs: int = 30, seed: int = 0):
+                 max_epochs: int = 30, seed: int = 0, max_domain_excess: float = 0.5):
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
         self.target, self.n_rules, self.min_samples, self.max_epochs, self.seed = (
             target, n_rules, min_samples, max_epochs, seed)
+        self.max_domain_excess = max_domain_excess
+        self.off_domain = 0  # queries refused: features outside the training range
         self._x: deque = deque(maxlen=window)
         self._y: deque = deque(maxlen=window)
         self._stale = False
@@ -63,6 +67,9 @@ class AnfisCompensator:
         if self.model is None:
             return None
         arrays, norm = self.model
+        if anfis_numpy.domain_excess(norm, query.features) > self.max_domain_excess:
+            self.off_domain += 1
+            return None
         return anfis_numpy.predict(arrays, norm, query.features[None, :])[0], self.rate_std
 
 

@@ -311,7 +311,7 @@ _schema("learn_query", 1, "Prediction request of the ins while GNSS is lost (zen
         target=STR, features=FLOATS, dt_s=FLOAT)
 _schema("model_params", 1, "Versioned parameter set: name, version, kind, created_t_ns, normalisation "
         "{key: {shape, data[, dtype]}} (or {key: floats}), arrays {key: {shape, data[, dtype]}}, metrics, checksum. "
-        "format (optional) names the parameter-set format; with format 'zennav.paramset/1' (model_params_msg / "
+        "format (optional) names the parameter-set format; with format 'zennav.paramset/2' (model_params_msg / "
         "paramset_of) the message is zennav.learn.paramset's set with each array's bytes as a number list, and "
         "checksum is paramset.checksum of that set, verified end to end; otherwise params_checksum.",
         name=STR, version=INT, kind=STR, created_t_ns=INT, norm=MAP, arrays=MAP, metrics=MAP, checksum=STR,
@@ -478,7 +478,7 @@ def map_array(m: dict) -> np.ndarray:
 
 # learning loop (DESIGN.md section 5): ins -> learn/samples -> trainer -> learn/model/<name> -> predictor;
 # ins -> learn/query -> predictor -> learn/correction -> ins
-PARAMSET_FORMAT = "zennav.paramset/1"  # zennav.learn.paramset.SCHEMA (not imported: no learn dependency here)
+PARAMSET_FORMAT = "zennav.paramset/2"  # zennav.learn.paramset.SCHEMA (not imported: no learn dependency here)
 _PS_DTYPES = ("<f8", "<i8")  # little-endian float64, int64
 
 

@@ -13,14 +13,15 @@ def _parts(n_in=3, n_rules=4, n_out=2, seed=0):
     rng = np.random.default_rng(seed)
     arrays = an.cluster_rulebase(rng.normal(size=(100, n_in)), n_rules, seed=seed)
     arrays["consequents"] = rng.normal(size=(n_rules, n_in + 1, n_out))
-    norm = dict(x_mean=rng.normal(size=n_in), x_std=rng.uniform(1, 2, n_in), y_mean=np.zeros(n_out),
-                y_std=np.ones(n_out))
+    norm = dict(x_mean=rng.normal(size=n_in), x_std=rng.uniform(1, 2, n_in), x_min=np.full(n_in, -3.0),
+                x_max=np.full(n_in, 3.0), y_mean=np.zeros(n_out), y_std=np.ones(n_out))
     return arrays, norm
 
 
-def _msg(version=5, **changes):
+def _msg(version=5, norm_changes=None, **changes):
     arrays, norm = _parts()
     arrays.update(changes)
+    norm.update(norm_changes or {})
     metrics = {"val_rmse": np.array([0.1, 0.2]), "epochs": np.int64(7)}  # numpy values become plain
     return paramset.build("drift", version, arrays, norm, metrics, created_t_ns=123)
 
@@ -83,6 +84,7 @@ def test_rejections_have_distinct_reasons():
     assert _reason(good, n_in=4) == "shape"
     assert _reason(good, name="other") == "schema"
     assert _reason(_msg(rules=np.full((4, 3), 7))) == "invalid_value"
+    assert _reason(_msg(norm_changes={"x_min": np.full(3, 4.0)})) == "invalid_value"  # x_min > x_max
 
 
 def _reason_decode(payload):

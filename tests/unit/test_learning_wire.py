@@ -99,6 +99,32 @@ def test_predictor_swaps_validated_sets_and_keeps_the_live_one_on_rejection():
     assert node.on_query(q)["version"] == 9 and node.counters()["live_version_drift"] == 9
 
 
+def test_predictor_refuses_queries_outside_the_training_range():
+    from zennav.services.predictor import PredictorNode
+
+    out = []
+    node = PredictorNode(out.append, LOG, max_domain_excess=0.5)
+    ps = _set(1, seed=1)
+    assert node.on_model(K.learn_model("anfis-drift"), _wire(M.model_params_msg(ps)), 0)
+    norm = paramset.validate(ps).norm
+    inside = (norm["x_min"] + norm["x_max"]) / 2
+    edge = inside.copy()
+    edge[4] = norm["x_max"][4] + 0.4 * norm["x_std"][4]  # 0.4 std beyond the range: still answered
+    far, below = inside.copy(), inside.copy()
+    far[4] = norm["x_max"][4] + 0.6 * norm["x_std"][4]
+    below[0] = norm["x_min"][0] - 2.0 * norm["x_std"][0]
+    assert anfis_numpy.domain_excess(norm, inside) == 0.0
+    assert anfis_numpy.domain_excess(norm, far) == pytest.approx(0.6)
+
+    def query(x):
+        return node.on_query(dict(M.make("learn_query", 1, target="drift", features=list(map(float, x)), dt_s=1.0),
+                                  src="ins", seq=0))
+
+    assert query(inside) is not None and query(edge) is not None
+    assert query(far) is None and query(below) is None
+    assert node.queries["off_domain"] == 2 and node.queries["answered"] == 2 and len(out) == 2
+
+
 class _FakeNav:
     def __init__(self):
         self.t_ns, self.last_fused_t_ns = 0, -1

@@ -22,6 +22,10 @@ model_<reason> in the rejected map); a finite positive train_rmse per output (th
 live one (same version and checksum, e.g. the late-joiner reply and the publication both arriving) is counted
 as a duplicate, not a rejection.
 
+Domain: a query whose features lie outside the live set's training range by more than --max-domain-excess
+training standard deviations (anfis_numpy.domain_excess) is not answered (counted as off_domain): a first-order
+Takagi-Sugeno model extrapolates linearly there, without bound, and the ins then runs on its own INS.
+
 Atomic swap: the live sets are immutable objects (read-only arrays) in a dict keyed by target; validation runs
 on the model subscription's thread, outside any lock the queries take, and the swap is one reference store. A
 query (on its own thread) reads the reference once and computes the whole answer from that object, so every
@@ -71,8 +75,9 @@ class PredictorNode:
     messages (``reject(key, reason)`` for bus-invalid ones), ``on_query(msg)`` with learn_query messages; answers
     go to ``publish(msg)``. on_model may run concurrently with on_query (see the module docstring)."""
 
-    def __init__(self, publish, log, bus_reject=None, on_change=None):
+    def __init__(self, publish, log, bus_reject=None, on_change=None, max_domain_excess: float = 0.5):
         self.publish = publish
+        self.max_domain_excess = float(max_domain_excess)
         self.log = log
         self.bus_reject = bus_reject or (lambda key, reason: None)
         self.on_change = on_change or (lambda detail: None)
@@ -83,7 +88,7 @@ class PredictorNode:
         self.last_rejection = ""
         self.swap_latency_ns: deque = deque(maxlen=10_000)  # publisher put -> live (same-host clocks)
         self.validate_ns: deque = deque(maxlen=10_000)  # received -> live
-        self.queries: Counter[str] = Counter()  # answered, no_model, bad_features, nonfinite (query thread only)
+        self.queries: Counter[str] = Counter()  # answered, no_model, bad_features, off_domain, nonfinite (query thread)
         self.gnss_state = "unknown"
 
     # ------------------------------------------------------------------ parameter sets
@@ -154,6 +159,9 @@ class PredictorNode:
         if x.shape != (model.n_in,):
             self.queries["bad_features"] += 1
             return None
+        if anfis_numpy.domain_excess(model.norm, x) > self.max_domain_excess:
+            self.queries["off_domain"] += 1
+            return None
         y = anfis_numpy.predict(model.arrays, model.norm, x)
         if not np.all(np.isfinite(y)):
             self.queries["nonfinite"] += 1
@@ -193,6 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
                                 "parameter sets (numpy), validated hot swap, answers learn/query")
     p.add_argument("--queue", type=int, default=4096, help="query queue capacity (back-pressure beyond)")
     p.add_argument("--no-fetch", action="store_true", help="do not ask for the latest parameter sets at start")
+    p.add_argument("--max-domain-excess", type=float, default=0.5,
+                   help="answer only queries within this many training standard deviations of the training range")
     return add_bus_args(p)
 
 
@@ -202,13 +212,14 @@ def main(argv=None) -> int:
     k = run.keys
     bus = run.bus
     out = bus.publisher(k.learn_correction())
-    node = PredictorNode(out.put, run.log, bus_reject=bus._rejected, on_change=lambda d: setattr(run, "detail", d))
+    node = PredictorNode(out.put, run.log, bus_reject=bus.count_rejected, on_change=lambda d: setattr(run, "detail", d),
+                         max_domain_excess=args.max_domain_excess)
     validator = M.Validator()
 
     def on_model(key, payload, recv_ns):  # raw bytes: bus-invalid sets are parameter-set rejections too
         msg, reason = validator.check(key, payload)
         if msg is None:
-            bus._rejected(key, reason)
+            bus.count_rejected(key, reason)
             node.reject(key, reason, bus_counted=True)
             return
         node.on_model(key, msg, recv_ns)

@@ -15,8 +15,9 @@ Model arrays (float64, `rules` int64), in normalised input/output units:
   a, b, c       (n_in, n_mf)             bell width (> 0), slope (> 0), centre of MF m of input j
   rules         (n_rules, n_in)          index of the MF that input j uses in rule r
   consequents   (n_rules, n_in + 1, n_out)  rows 0..n_in-1 P_r, last row q_r
-Normalisation (`norm`): x_mean, x_std (n_in,), y_mean, y_std (n_out,); x_n = (x - x_mean) / x_std,
-y = y_n * y_std + y_mean.
+Normalisation (`norm`): x_mean, x_std, x_min, x_max (n_in,), y_mean, y_std (n_out,); x_n = (x - x_mean) / x_std,
+y = y_n * y_std + y_mean. x_min, x_max: the training inputs' range, the model's domain: a first-order TS model
+extrapolates linearly (and without bound) outside it, so predictors refuse inputs beyond it (`domain_excess`).
 
 Rule bases: `grid_rulebase` (every combination of n_mf MFs per input: n_mf ** n_in rules, for a few
 inputs) and `cluster_rulebase` (k-means, one rule per cluster with its own MF on every input: the rule
@@ -32,7 +33,7 @@ from typing import Mapping
 import numpy as np
 
 ARRAY_NAMES = ("a", "b", "c", "rules", "consequents")
-NORM_NAMES = ("x_mean", "x_std", "y_mean", "y_std")
+NORM_NAMES = ("x_mean", "x_std", "x_min", "x_max", "y_mean", "y_std")
 
 
 def log_bell(x: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -72,15 +73,26 @@ def predict(arrays: Mapping[str, np.ndarray], norm: Mapping[str, np.ndarray], x:
 
 
 def fit_normalization(x: np.ndarray, y: np.ndarray, min_std: float = 1e-12) -> dict[str, np.ndarray]:
-    """Per-column mean and standard deviation of inputs and targets (std floored at min_std)."""
+    """Per-column mean, standard deviation (floored at min_std) and range of the inputs; mean and standard
+    deviation of the targets."""
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     y = y[:, None] if y.ndim == 1 else y
     return dict(
         x_mean=x.mean(axis=0),
         x_std=np.maximum(x.std(axis=0), min_std),
+        x_min=x.min(axis=0),
+        x_max=x.max(axis=0),
         y_mean=y.mean(axis=0),
         y_std=np.maximum(y.std(axis=0), min_std),
     )
+
+
+def domain_excess(norm: Mapping[str, np.ndarray], x: np.ndarray) -> float:
+    """How far x (n_in,) lies outside the training range [x_min, x_max], in training standard deviations of
+    the input that is farthest out (0.0 inside the range)."""
+    x = np.asarray(x, dtype=float)
+    out = np.maximum(norm["x_min"] - x, x - norm["x_max"])
+    return float(max(0.0, np.max(out / norm["x_std"])))
 
 
 def grid_rulebase(x: np.ndarray, n_mf: int, *, slope: float = 2.0, max_rules: int = 256) -> dict:

@@ -1,8 +1,8 @@
 """Versioned ANFIS parameter sets (DESIGN.md sec. 5): build, encode, checksum, validate. numpy + msgpack only.
 
 Message (msgpack-friendly dict):
-  schema "zennav.paramset/1", kind "anfis", name str, version int >= 0, created_t_ns int,
-  norm {x_mean, x_std, y_mean, y_std}, arrays {a, b, c, rules, consequents} (see anfis_numpy),
+  schema "zennav.paramset/2", kind "anfis", name str, version int >= 0, created_t_ns int,
+  norm {x_mean, x_std, x_min, x_max, y_mean, y_std} (x_min/x_max: the training range, new in /2), arrays {a, b, c, rules, consequents} (see anfis_numpy),
   metrics {str: int | float | str | list of numbers}, checksum "sha256:<hex>".
 Each array is {"dtype": "<f8" | "<i8", "shape": [...], "data": bytes (C order)}.
 The checksum is the SHA-256 of the msgpack encoding of every other field with map keys sorted at every level.
@@ -22,7 +22,7 @@ import numpy as np
 
 from .anfis_numpy import ARRAY_NAMES, NORM_NAMES
 
-SCHEMA = "zennav.paramset/1"
+SCHEMA = "zennav.paramset/2"
 KIND = "anfis"
 REASONS = ("decode", "schema", "checksum", "shape", "non_finite", "invalid_value", "stale_version")
 _FIELDS = {"schema": str, "kind": str, "name": str, "version": int, "created_t_ns": int, "norm": dict,
@@ -170,7 +170,7 @@ def _check_shapes(arrays, norm, n_in, n_out) -> None:
     if cons.ndim != 3 or cons.shape[:2] != (rules.shape[0], ni + 1):
         raise ParamSetRejected("shape", f"consequents {cons.shape} is not ({rules.shape[0]}, {ni + 1}, n_out)")
     no = cons.shape[2]
-    for k, want in (("x_mean", ni), ("x_std", ni), ("y_mean", no), ("y_std", no)):
+    for k, want in (("x_mean", ni), ("x_std", ni), ("x_min", ni), ("x_max", ni), ("y_mean", no), ("y_std", no)):
         if norm[k].shape != (want,):
             raise ParamSetRejected("shape", f"norm.{k} {norm[k].shape} is not ({want},)")
     for dim, got, want in (("n_in", ni, n_in), ("n_out", no, n_out)):
@@ -201,6 +201,8 @@ def validate(msg: Mapping, *, live_version: int | None = None, n_in: int | None 
                         ("norm", norm, "y_std")):
         if np.any(d[k] <= 0.0):
             raise ParamSetRejected("invalid_value", f"{group}.{k} must be > 0")
+    if np.any(norm["x_min"] > norm["x_max"]):
+        raise ParamSetRejected("invalid_value", "norm.x_min must be <= norm.x_max")
     if live_version is not None and msg["version"] <= live_version:
         raise ParamSetRejected("stale_version", f"version {msg['version']} is not above live {live_version}")
     return ParamSet(msg["name"], msg["version"], msg["created_t_ns"], MappingProxyType(arrays),
