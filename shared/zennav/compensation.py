@@ -75,27 +75,36 @@ class AnfisCompensator:
 
 class ElmanCompensator:
     """Online Elman network (seed 002) on a sliding window; silent until its training error is acceptable.
-    The input/output normalisation is fixed from the first `window` samples, then learning starts."""
+    The input/output normalisation is fixed from the first `window` samples, then learning starts. Like the
+    ANFIS, it answers only features within `max_domain_excess` training standard deviations of the range of
+    the features it has learned from."""
 
     def __init__(self, target: str = "position", n_hidden: int = 12, window: int = 200, threshold: float = 0.8,
-                 seed: int = 0):
+                 seed: int = 0, max_domain_excess: float = 0.5):
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
         self.target, self.n_hidden, self.window, self.threshold, self.seed = target, n_hidden, window, threshold, seed
+        self.max_domain_excess = max_domain_excess
         self.net: Elman | None = None
         self._first: list[tuple[np.ndarray, np.ndarray]] = []
         self._residuals: deque = deque(maxlen=window)
+        self._x_min = self._x_max = None  # range of the learned features
+        self.learned = 0
+        self.off_domain = 0
 
     def _learn(self, x: np.ndarray, y: np.ndarray) -> None:
         if self.net.ready:
             self._residuals.append(self.net.predict(x) - y)
         self.net.learn(x, y)
+        self.learned += 1
+        self._x_min = x.copy() if self._x_min is None else np.minimum(self._x_min, x)
+        self._x_max = x.copy() if self._x_max is None else np.maximum(self._x_max, x)
 
     def add(self, samples: list[LearnSample]) -> None:
         for s in samples:
             if s.target != self.target:
                 continue
-            x, y = s.features, s.value
+            x, y = np.asarray(s.features, dtype=float), np.asarray(s.value, dtype=float)
             if self.net is not None:
                 self._learn(x, y)
                 continue
@@ -109,11 +118,25 @@ class ElmanCompensator:
                     self._learn(xi, yi)
                 self._first = []
 
+    @property
+    def ready(self) -> bool:
+        return self.net is not None and self.net.ready and len(self._residuals) >= 10
+
+    def norm(self) -> dict[str, np.ndarray]:
+        """The network's normalisation plus the range of the learned features (x_min, x_max)."""
+        return {**self.net.norm(), "x_min": self._x_min, "x_max": self._x_max}
+
+    def std(self) -> np.ndarray:
+        """1-sigma per output: RMS of the one-step prediction residuals over the window (physical units)."""
+        return np.maximum(np.sqrt(np.mean(np.square(self._residuals), axis=0)), 1e-6)
+
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:
-        if query.target != self.target or self.net is None or not self.net.ready or len(self._residuals) < 10:
+        if query.target != self.target or not self.ready:
             return None
-        std = np.sqrt(np.mean(np.square(self._residuals), axis=0))
-        return self.net.predict(query.features), np.maximum(std, 1e-6)
+        if anfis_numpy.domain_excess(self.norm(), query.features) > self.max_domain_excess:
+            self.off_domain += 1
+            return None
+        return self.net.predict(query.features), self.std()
 
 
 def make_compensator(model: str, target: str = "position", seed: int = 0):

@@ -39,8 +39,12 @@ def test_elman_predicts_only_under_its_error_threshold(drive):
     assert not [r for r in res.reports if r.source.startswith("learned")]
     comp.threshold = comp.net.threshold = 10.0
     comp._residuals.extend([np.zeros(2)] * 10)
-    query = type("Q", (), {"target": "position", "features": np.zeros(len(RATE_FEATURES))})()
+    norm = comp.norm()
+    inside = (norm["x_min"] + norm["x_max"]) / 2
+    query = type("Q", (), {"target": "position", "features": inside})()
     assert comp.predict(query) is not None
+    query.features = norm["x_max"] + norm["x_std"]  # a whole training std beyond the learned range: refused
+    assert comp.predict(query) is None and comp.off_domain == 1
 
 
 def test_samples_only_after_convergence_and_queries_only_without_gnss(drive):

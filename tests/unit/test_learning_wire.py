@@ -208,3 +208,36 @@ def test_trainer_schedule_and_published_set_accepted_by_the_predictor():
     assert msg["metrics"]["samples"] == 120 and msg["metrics"]["n_rules"] == 2  # 120 // (4 * 14) rules
     pred = PredictorNode(lambda m: None, LOG)
     assert pred.on_model(K.learn_model("anfis-drift"), _wire(msg), 0) and pred.live["drift"].version == 7
+
+
+def test_elman_trainer_publishes_once_ready_and_the_predictor_runs_the_same_network():
+    """--model elman: online learning in arrival order; no set until the network is under its threshold; the
+    predictor's answers are the trainer's network stepped from the published context."""
+    from zennav.learn import elman
+    from zennav.services.predictor import PredictorNode
+    from zennav.services.trainer import TrainerNode
+
+    published = []
+    node = TrainerNode(lambda name, msg: published.append((name, msg)), LOG, ("drift",), model="elman",
+                       min_samples=50, retrain_samples=50, retrain_every_s=0)
+    rng = np.random.default_rng(1)
+    xs = rng.normal(size=(400, N_IN))
+    ys = np.stack([0.5 * xs[:, 0], -0.3 * xs[:, 1]], axis=1)  # a learnable map
+    for i in range(150):
+        node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
+    assert node.due() == ["drift"] and node.train("drift") is None and not published  # window not full yet
+    for i in range(150, 400):
+        node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
+    msg = node.train("drift")
+    assert msg is not None and published[-1][0] == "elman-drift" and msg["kind"] == "elman"
+    assert msg["metrics"]["samples"] == 400
+    comp = node.elman["drift"]
+    pred = PredictorNode(lambda m: None, LOG)
+    assert pred.on_model(K.learn_model("elman-drift"), _wire(msg), 0)
+    ctx, gain = comp.net.context.copy(), comp.net.context_gain
+    for x in xs[:3] * 0.5:
+        a = pred.on_query(dict(M.make("learn_query", 1, target="drift", features=list(map(float, x)), dt_s=1.0),
+                               src="ins", seq=0))
+        want, ctx = elman.step(comp.net.arrays(), comp.norm(), x, ctx, gain)
+        assert a["model"] == "elman-drift" and np.allclose(a["value"], want, rtol=0, atol=1e-12)
+        assert a["std"] == pytest.approx(list(comp.std()))

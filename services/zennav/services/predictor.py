@@ -1,6 +1,8 @@
-"""predictor service (issue 6, DESIGN.md section 5): holds the live ANFIS parameter set of each target variant
-(numpy only: this process never imports torch), swaps in a validated newer one atomically between two queries,
-and answers every learn/query with the prediction, its 1-sigma and the model version used.
+"""predictor service (issue 6, DESIGN.md section 5): holds the live parameter set of each target variant, an ANFIS
+or an Elman network (numpy only: this process never imports torch), swaps in a validated newer one atomically
+between two queries, and answers every learn/query with the prediction, its 1-sigma and the model version used.
+An Elman set carries its context; the predictor advances that context with every query it answers (as the network
+does at the edge in seed 002) and starts again from the set's own context when a new set is swapped in.
 
 Wiring table
     subscribes <base>/learn/model/*     model_params (the wire form of zennav.learn.paramset; validated, below)
@@ -38,13 +40,13 @@ import sys
 import threading
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from collections.abc import Mapping
 
 import numpy as np
 
 from zennav import messages as M
-from zennav.learn import anfis_numpy, paramset
+from zennav.learn import anfis_numpy, elman, paramset
 from zennav.nav.learning import FEATURES
 from zennav.service import ServiceRunner, add_bus_args
 
@@ -53,8 +55,10 @@ N_OUT = 2  # N and E
 
 @dataclass(frozen=True)
 class LiveModel:
-    """One validated parameter set in service; never mutated (a swap replaces the object)."""
+    """One validated parameter set in service; never mutated (a swap replaces the object), except an Elman's
+    context, which only the query thread advances."""
 
+    kind: str
     name: str
     target: str
     version: int
@@ -64,6 +68,15 @@ class LiveModel:
     std: tuple  # 1-sigma per output: the set's training RMSE (physical units)
     n_in: int
     swapped_ns: int
+    context_gain: float = 0.0  # elman
+    context: list = field(default_factory=list)  # elman: [context (n_hidden,)], advanced per answered query
+
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        """The prediction (physical units) for features x (n_in,)."""
+        if self.kind == "anfis":
+            return anfis_numpy.predict(self.arrays, self.norm, x)
+        y, self.context[0] = elman.step(self.arrays, self.norm, x, self.context[0], self.context_gain)
+        return y
 
 
 def _pct(values, q: float) -> float:
@@ -135,8 +148,10 @@ class PredictorNode:
                 self.reject(key, f"model_invalid_value: metrics.train_rmse must be {N_OUT} finite numbers > 0", False)
                 return False
             now = time.time_ns()
-            new = LiveModel(name, target, ps.version, ps.checksum, ps.arrays, ps.norm, tuple(float(s) for s in std),
-                            ps.n_in, now)
+            extra = {} if ps.kind == "anfis" else dict(context_gain=float(ps.metrics["context_gain"]),
+                                                       context=[ps.arrays["context"].copy()])
+            new = LiveModel(ps.kind, name, target, ps.version, ps.checksum, ps.arrays, ps.norm,
+                            tuple(float(s) for s in std), ps.n_in, now, **extra)
             self.live[target] = new  # the swap: one reference store (see the module docstring)
             self.sets["received"] += 1
             self.sets["accepted"] += 1
@@ -162,7 +177,7 @@ class PredictorNode:
         if anfis_numpy.domain_excess(model.norm, x) > self.max_domain_excess:
             self.queries["off_domain"] += 1
             return None
-        y = anfis_numpy.predict(model.arrays, model.norm, x)
+        y = model.forward(x)
         if not np.all(np.isfinite(y)):
             self.queries["nonfinite"] += 1
             return None

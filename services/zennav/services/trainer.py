@@ -1,7 +1,11 @@
 """trainer service (issue 6, DESIGN.md sections 5 and 6): collects the ins's training samples per target variant,
-retrains ANFIS by the hybrid learner (least squares for the consequents + Fletcher-Reeves CG for the premises,
-zennav.learn.anfis_torch.fit_anfis) and publishes versioned parameter sets. The only zennav process that imports
-torch; it trains on the GPU when torch sees one.
+learns the INS error and publishes versioned parameter sets. --model anfis (default): retrains ANFIS by the
+hybrid learner (least squares for the consequents + Fletcher-Reeves CG for the premises,
+zennav.learn.anfis_torch.fit_anfis) on the newest samples. --model elman (seed 002): an Elman network learns
+online from every sample, in arrival order, on its sliding window (zennav.compensation.ElmanCompensator, the
+same object the in-process replay uses); on the schedule below its weights and context are published, once its
+training error is under its threshold (before that nothing is published, as the seed's network does not
+predict). The only zennav process that imports torch; ANFIS trains on the GPU when torch sees one.
 
 Wiring table
     subscribes <base>/learn/samples        learn_sample from the ins (variants outside --targets are counted, ignored)
@@ -10,7 +14,7 @@ Wiring table
                                            joiners by the publisher's queryable)
                <base>/svc/trainer/status   samples per target, trainings, versions, link losses, device
 
-Rule count: --n-rules, reduced while samples are few to at most one consequent parameter per 4 samples per
+ANFIS rule count: --n-rules, reduced while samples are few to at most one consequent parameter per 4 samples per
 output (n_rules * (n_in + 1) <= N / 4), so that the training RMSE, the predictions' 1-sigma, is not that of an
 interpolating fit.
 
@@ -41,8 +45,11 @@ from collections import Counter, deque
 import numpy as np
 
 from zennav import messages as M
+from zennav.compensation import ElmanCompensator
 from zennav.learn import paramset
-from zennav.nav.learning import FEATURES, TARGETS
+from zennav.nav.learning import FEATURES, TARGETS, LearnSample
+
+MODELS = ("anfis", "elman")
 from zennav.service import ServiceRunner, add_bus_args
 
 
@@ -50,12 +57,17 @@ class TrainerNode:
     """The transport-free part of the trainer: ``on_sample(msg)`` from the bus thread, ``train_due()`` /
     ``train(target)`` from the training thread; ``publish(name, msg)`` sends a model_params message."""
 
-    def __init__(self, publish, log, targets=("drift",), *, prefix: str = "anfis", window: int = 5000,
-                 min_samples: int = 200, retrain_samples: int = 500, retrain_every_s: float = 60.0,
-                 n_rules: int = 8, max_epochs: int = 30, seed: int = 0, device=None, first_version: int = 1):
+    def __init__(self, publish, log, targets=("drift",), *, model: str = "anfis", prefix: str | None = None,
+                 window: int = 5000, min_samples: int = 200, retrain_samples: int = 500,
+                 retrain_every_s: float = 60.0, n_rules: int = 8, max_epochs: int = 30, seed: int = 0, device=None,
+                 first_version: int = 1):
+        if model not in MODELS:
+            raise ValueError(f"model must be one of {MODELS}")
         self.publish = publish
         self.log = log
+        self.model = model
         self.targets = tuple(targets)
+        prefix = prefix or model
         self.names = {t: M.check_chunk(f"{prefix}-{t}", "model name") for t in self.targets}
         self.window, self.min_samples = int(window), int(min_samples)
         self.retrain_samples, self.retrain_every_s = int(retrain_samples), float(retrain_every_s)
@@ -63,6 +75,8 @@ class TrainerNode:
         self.device = device
         self.cv = threading.Condition()
         self.data = {t: deque(maxlen=self.window) for t in self.targets}  # (t_ns, features, value)
+        self.unlearned = {t: [] for t in self.targets}  # elman: samples not yet learned, in arrival order
+        self.elman = {t: ElmanCompensator(t, seed=seed) for t in self.targets} if model == "elman" else {}
         self.new = {t: 0 for t in self.targets}
         self.last_train = {t: time.monotonic() for t in self.targets}
         self.version = {t: int(first_version) - 1 for t in self.targets}
@@ -81,6 +95,9 @@ class TrainerNode:
             return
         with self.cv:
             self.data[t].append((msg["t_ns"], msg["features"], msg["target"]))
+            if self.elman:
+                self.unlearned[t].append(LearnSample(msg["t_ns"], t, np.asarray(msg["features"], dtype=float),
+                                                     np.asarray(msg["target"], dtype=float)))
             self.new[t] += 1
             self.counts[f"samples_{t}"] += 1
             if self.new[t] >= self.retrain_samples:
@@ -112,7 +129,48 @@ class TrainerNode:
         return due
 
     def train(self, target: str) -> dict | None:
-        """Fit on a snapshot of the target's window and publish the set; returns the published message."""
+        """Train the target's model on what arrived and publish its set; returns the published message (None
+        when nothing was published)."""
+        return self._learn_elman(target) if self.elman else self._fit_anfis(target)
+
+    def _next_version(self, target: str) -> int:
+        with self.cv:
+            self.version[target] += 1
+            return self.version[target]
+
+    def _learn_elman(self, target: str) -> dict | None:
+        """Online learning of the new samples, then the network's weights and context as a set when it is ready."""
+        with self.cv:
+            rows, self.unlearned[target] = self.unlearned[target], []
+            self.new[target] = 0
+            self.last_train[target] = time.monotonic()
+        comp = self.elman[target]
+        self.busy = f"learning {target} online from {len(rows)} samples"
+        try:
+            comp.add(rows)
+        finally:
+            self.busy = ""
+        if not comp.ready:
+            self.counts[f"not_ready_{target}"] += 1
+            return None
+        std = comp.std()
+        version = self._next_version(target)
+        net = comp.net
+        metrics = {"target": target, "method": "elman_online", "train_rmse": std.tolist(), "samples": comp.learned,
+                   "window": net.window, "n_hidden": net.n_hidden, "context_gain": float(net.context_gain),
+                   "window_rmse_normalised": float(net.train_rmse), "t_last_ns": int(rows[-1].t_ns) if rows else 0}
+        arrays = {k: v.copy() for k, v in net.arrays().items()}
+        name = self.names[target]
+        msg = M.model_params_msg(paramset.build(name, version, arrays, comp.norm(), metrics, kind="elman"))
+        self.publish(name, msg)
+        self.counts[f"trainings_{target}"] += 1
+        self.last[target] = {"version": version, "samples": comp.learned, "train_rmse": [round(v, 4) for v in std]}
+        self.log.info("published %s v%d: learned %d samples online, residual rms %s", name, version, comp.learned,
+                      self.last[target]["train_rmse"])
+        return msg
+
+    def _fit_anfis(self, target: str) -> dict | None:
+        """Fit ANFIS on a snapshot of the target's window and publish the set."""
         from zennav.learn.anfis_torch import TrainConfig, fit_anfis
 
         with self.cv:
@@ -135,9 +193,7 @@ class TrainerNode:
             return None
         finally:
             self.busy = ""
-        with self.cv:
-            self.version[target] += 1
-            version = self.version[target]
+        version = self._next_version(target)
         metrics = {**fit.metrics, "target": target, "samples": int(len(x)), "t_first_ns": int(t_ns.min()),
                    "t_last_ns": int(t_ns.max()), "device": str(self.device or "cpu"), "n_rules": int(len(fit.arrays["rules"]))}
         name = self.names[target]
@@ -168,10 +224,13 @@ class TrainerNode:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS hybrid "
-                                "LSE + Fletcher-Reeves CG on the ins's samples, versioned parameter sets")
+    p = argparse.ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS (hybrid "
+                                "LSE + Fletcher-Reeves CG) or online Elman on the ins's samples, versioned parameter sets")
+    p.add_argument("--model", default="anfis", choices=MODELS, help="anfis: retrained on the newest samples; "
+                   "elman: learns online from every sample (seed 002)")
     p.add_argument("--targets", default="drift", help=f"comma-separated target variants to learn ({', '.join(TARGETS)})")
-    p.add_argument("--prefix", default="anfis", help="model name prefix: sets are published as <prefix>-<target>")
+    p.add_argument("--prefix", default=None, help="model name prefix (default: --model): sets are published as "
+                   "<prefix>-<target>")
     p.add_argument("--window", type=int, default=5000, help="newest samples kept per target")
     p.add_argument("--min-samples", type=int, default=200, help="no training below this many samples")
     p.add_argument("--retrain-samples", type=int, default=500, help="retrain after this many new samples")
@@ -214,7 +273,7 @@ def main(argv=None) -> int:
                 p = pubs[name] = bus.publisher(k.learn_model(name))
             p.put(msg)
 
-    node = TrainerNode(publish, run.log, targets, prefix=args.prefix, window=args.window,
+    node = TrainerNode(publish, run.log, targets, model=args.model, prefix=args.prefix, window=args.window,
                        min_samples=args.min_samples, retrain_samples=args.retrain_samples,
                        retrain_every_s=args.retrain_every, n_rules=args.n_rules, max_epochs=args.max_epochs,
                        seed=args.seed, device=device, first_version=args.first_version)

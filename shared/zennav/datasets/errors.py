@@ -5,6 +5,7 @@ strictly increasing, missing YAML key) becomes one ``DataError`` whose str is ``
 """
 from __future__ import annotations
 
+import gzip
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,11 +36,14 @@ def existing_file(path) -> Path:
 
 
 def read_text(path) -> str:
-    """Whole text of a file (UTF-8); DataError when missing or not text."""
+    """Whole text of a file (UTF-8; a ``.gz`` file is decompressed first); DataError when missing or not text."""
     path = existing_file(path)
     try:
+        if path.suffix == ".gz":
+            with gzip.open(path, "rt", encoding="utf-8") as f:
+                return f.read()
         return path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, EOFError, UnicodeDecodeError) as exc:
         raise DataError(path, f"cannot read as text: {exc}") from None
 
 

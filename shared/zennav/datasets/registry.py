@@ -9,10 +9,18 @@ from zennav.nav.types import Dataset
 
 RECORDINGS = {"rtklibexplorer": "rtklibexplorer_drive_0708", "comma2k19": "comma2k19_example_segment"}
 SIM_KINDS = ("car", "multirotor", "static")
+ANSFL_FOLDER = "ansfl_quadrotor_dji_rtk"
+ANSFL_FLIGHTS = {"Horizontal": 27, "Vertical": 30, "StraightLine": 4}  # ansfl:<group>/path_1..N
+ANSFL_ACCEPTED = ", ".join(f"ansfl:{group}/path_1..{n}" for group, n in ANSFL_FLIGHTS.items())
 ACCEPTED = (
-    f"{', '.join(RECORDINGS)}, a KF-GINS .yaml/.yml file, a dataset folder, or "
+    f"{', '.join(RECORDINGS)}, {ANSFL_ACCEPTED}, a KF-GINS .yaml/.yml file, a dataset folder, or "
     + ", ".join(f"sim:{kind}" for kind in SIM_KINDS)
 )
+
+
+def ansfl_specs() -> list[str]:
+    """Every ansfl:<group>/path_<n> spec, in order."""
+    return [f"ansfl:{group}/path_{k}" for group, n in ANSFL_FLIGHTS.items() for k in range(1, n + 1)]
 
 
 def data_root() -> Path:
@@ -35,16 +43,19 @@ def data_root() -> Path:
 
 def _load_folder(folder: Path, **options) -> Dataset:
     """A dataset folder, recognized by its files."""
-    from zennav.datasets import comma2k19, kfgins, rtklibexplorer
+    from zennav.datasets import ansfl, comma2k19, kfgins, rtklibexplorer
 
     if (folder / "global_pose").is_dir() and (folder / "processed_log").is_dir():
         return comma2k19.load(folder, **options)
+    if (folder / "GT.csv").is_file() and (folder / "IMU_1.csv.gz").is_file():
+        return ansfl.load(folder, **options)
     if any(folder.glob("imu_*.csv.tag")) and any(folder.glob("*.pos")):
         return rtklibexplorer.load(folder, **options)
     configs = sorted(folder.glob("*.yaml")) + sorted(folder.glob("*.yml"))
     if len(configs) == 1:
         return kfgins.load_config(configs[0], **options)
-    raise DataError(folder, f"not a known dataset folder (comma2k19, rtklibexplorer, or one KF-GINS YAML); "
+    raise DataError(folder, f"not a known dataset folder (comma2k19, rtklibexplorer, an ANSFL flight, or one "
+                            f"KF-GINS YAML); "
                             f"found {len(configs)} YAML files")
 
 
@@ -54,6 +65,12 @@ def load_dataset(spec: str, **options) -> Dataset:
 
     if spec in RECORDINGS:
         return _load_folder(data_root() / RECORDINGS[spec], **options)
+    if spec.startswith("ansfl:"):
+        if spec not in ansfl_specs():
+            raise DataError(spec, f"unknown ANSFL flight; accepted: {ANSFL_ACCEPTED}")
+        from zennav.datasets import ansfl
+
+        return ansfl.load(data_root() / ANSFL_FOLDER / spec[6:], **options)
     if spec.startswith("sim:"):
         kind = spec[4:]
         if kind not in SIM_KINDS:
@@ -70,10 +87,12 @@ def load_dataset(spec: str, **options) -> Dataset:
 
 
 def available() -> list[str]:
-    """Specs that load_dataset accepts right now: the recordings present in data_root() and the simulator scenarios."""
+    """Specs that load_dataset accepts right now: the recordings and ANSFL flights present in data_root() and the
+    simulator scenarios."""
     try:
         root = data_root()
     except DataError:
         root = None
     recordings = [name for name, folder in RECORDINGS.items() if root is not None and (root / folder).is_dir()]
-    return recordings + [f"sim:{kind}" for kind in SIM_KINDS]
+    flights = [spec for spec in ansfl_specs() if root is not None and (root / ANSFL_FOLDER / spec[6:]).is_dir()]
+    return recordings + flights + [f"sim:{kind}" for kind in SIM_KINDS]

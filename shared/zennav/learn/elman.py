@@ -11,6 +11,9 @@ alignment is done (set_aligned), and the network predicts only while its trainin
 threshold. Inputs and targets are normalised with the given means/stds; the threshold is an RMSE in
 normalised target units. The caller pairs each target with the features that explain it (seed 002 feeds
 x(k-1) for the increment ending at k).
+
+A network in service elsewhere (the predictor) needs only ARRAY_NAMES (weights and context), the
+normalisation and the context gain: `step` is its forward pass, the one `Elman.predict` runs.
 """
 from __future__ import annotations
 
@@ -20,9 +23,20 @@ from typing import Mapping
 import numpy as np
 
 
+ARRAY_NAMES = ("w1", "w2", "b1", "w3", "b3", "context")
+
+
 def bipolar_sigmoid(a: np.ndarray) -> np.ndarray:
     """(1 - e^-a) / (1 + e^-a), computed as tanh(a/2); range (-1, 1), derivative (1 - f^2) / 2."""
     return np.tanh(0.5 * a)
+
+
+def step(arrays: Mapping[str, np.ndarray], norm: Mapping[str, np.ndarray], x, context: np.ndarray,
+         context_gain: float) -> tuple[np.ndarray, np.ndarray]:
+    """One forward step: output (physical units) for input x (physical units) and the next context."""
+    xn = (np.asarray(x, dtype=float) - norm["x_mean"]) / norm["x_std"]
+    h = bipolar_sigmoid(arrays["w1"] @ xn + arrays["w2"] @ context + arrays["b1"])
+    return (arrays["w3"] @ h + arrays["b3"]) * norm["y_std"] + norm["y_mean"], h + context_gain * context
 
 
 class Elman:
@@ -113,10 +127,16 @@ class Elman:
         """Output (physical units) for input x, advancing the context; None while not ready."""
         if not self.ready:
             return None
-        xn = (np.asarray(x, dtype=float) - self.x_mean) / self.x_std
-        h = self._hidden(xn, self.context)
-        self.context = h + self.context_gain * self.context
-        return (self.w3 @ h + self.b3) * self.y_std + self.y_mean
+        y, self.context = step(self.arrays(), self.norm(), x, self.context, self.context_gain)
+        return y
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Weights and context (ARRAY_NAMES), the live arrays (not copies)."""
+        return {k: getattr(self, k) for k in ARRAY_NAMES}
+
+    def norm(self) -> dict[str, np.ndarray]:
+        """x_mean, x_std, y_mean, y_std."""
+        return dict(x_mean=self.x_mean, x_std=self.x_std, y_mean=self.y_mean, y_std=self.y_std)
 
     def get_state(self) -> dict:
         """Weights, context, window and counters as copies (numpy arrays and Python scalars)."""

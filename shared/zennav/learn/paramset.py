@@ -1,8 +1,11 @@
-"""Versioned ANFIS parameter sets (DESIGN.md sec. 5): build, encode, checksum, validate. numpy + msgpack only.
+"""Versioned parameter sets of the learned models (DESIGN.md sec. 5): build, encode, checksum, validate.
+numpy + msgpack only.
 
 Message (msgpack-friendly dict):
-  schema "zennav.paramset/2", kind "anfis", name str, version int >= 0, created_t_ns int,
-  norm {x_mean, x_std, x_min, x_max, y_mean, y_std} (x_min/x_max: the training range, new in /2), arrays {a, b, c, rules, consequents} (see anfis_numpy),
+  schema "zennav.paramset/2", kind "anfis" | "elman", name str, version int >= 0, created_t_ns int,
+  norm {x_mean, x_std, x_min, x_max, y_mean, y_std} (x_min/x_max: the training range, new in /2),
+  arrays: anfis {a, b, c, rules, consequents} (see anfis_numpy), elman {w1, w2, b1, w3, b3, context} (see elman;
+  its context gain is metrics["context_gain"]),
   metrics {str: int | float | str | list of numbers}, checksum "sha256:<hex>".
 Each array is {"dtype": "<f8" | "<i8", "shape": [...], "data": bytes (C order)}.
 The checksum is the SHA-256 of the msgpack encoding of every other field with map keys sorted at every level.
@@ -20,10 +23,12 @@ from typing import Any, Mapping
 import msgpack
 import numpy as np
 
-from .anfis_numpy import ARRAY_NAMES, NORM_NAMES
+from . import anfis_numpy, elman
+from .anfis_numpy import NORM_NAMES
 
 SCHEMA = "zennav.paramset/2"
-KIND = "anfis"
+KINDS = {"anfis": anfis_numpy.ARRAY_NAMES, "elman": elman.ARRAY_NAMES}  # kind -> its array names
+INT_ARRAYS = ("rules",)
 REASONS = ("decode", "schema", "checksum", "shape", "non_finite", "invalid_value", "stale_version")
 _FIELDS = {"schema": str, "kind": str, "name": str, "version": int, "created_t_ns": int, "norm": dict,
            "arrays": dict, "metrics": dict, "checksum": str}
@@ -42,6 +47,7 @@ class ParamSetRejected(ValueError):
 class ParamSet:
     """A validated parameter set; arrays and norm are read-only numpy arrays."""
 
+    kind: str
     name: str
     version: int
     created_t_ns: int
@@ -52,11 +58,11 @@ class ParamSet:
 
     @property
     def n_in(self) -> int:
-        return self.arrays["a"].shape[0]
+        return self.norm["x_mean"].shape[0]
 
     @property
     def n_out(self) -> int:
-        return self.arrays["consequents"].shape[-1]
+        return self.norm["y_mean"].shape[0]
 
 
 def _encode_array(a: np.ndarray) -> dict:
@@ -87,16 +93,17 @@ def checksum(msg: Mapping) -> str:
 
 
 def build(name: str, version: int, arrays: Mapping[str, np.ndarray], norm: Mapping[str, np.ndarray],
-          metrics: Mapping[str, Any] | None = None, *, created_t_ns: int | None = None) -> dict:
-    """Parameter-set message from anfis_numpy arrays and normalisation, checksum included (not validated)."""
+          metrics: Mapping[str, Any] | None = None, *, kind: str = "anfis", created_t_ns: int | None = None) -> dict:
+    """Parameter-set message from a model's arrays (KINDS[kind]) and normalisation, checksum included (not
+    validated)."""
     msg = {
         "schema": SCHEMA,
-        "kind": KIND,
+        "kind": kind,
         "name": name,
         "version": int(version),
         "created_t_ns": time.time_ns() if created_t_ns is None else int(created_t_ns),
         "norm": {k: _encode_array(norm[k]) for k in NORM_NAMES},
-        "arrays": {k: _encode_array(arrays[k]) for k in ARRAY_NAMES},
+        "arrays": {k: _encode_array(arrays[k]) for k in KINDS[kind]},
         "metrics": {str(k): _plain(v) for k, v in (metrics or {}).items()},
     }
     msg["checksum"] = checksum(msg)
@@ -128,18 +135,18 @@ def _check_schema(msg: Mapping) -> None:
     for key, typ in _FIELDS.items():
         if not isinstance(msg[key], typ) or (typ is int and isinstance(msg[key], bool)):
             bad(f"field {key!r} is {type(msg[key]).__name__}, not {typ.__name__}")
-    if msg["schema"] != SCHEMA or msg["kind"] != KIND:
+    if msg["schema"] != SCHEMA or msg["kind"] not in KINDS:
         bad(f"unsupported schema/kind {msg['schema']!r}/{msg['kind']!r}")
     if msg["version"] < 0:
         bad("negative version")
-    for group, names in (("norm", NORM_NAMES), ("arrays", ARRAY_NAMES)):
+    for group, names in (("norm", NORM_NAMES), ("arrays", KINDS[msg["kind"]])):
         if set(msg[group]) != set(names):
             bad(f"{group} has {sorted(map(str, msg[group]))}, expected {sorted(names)}")
         for k in names:
             enc = msg[group][k]
             if not (isinstance(enc, dict) and set(enc) == {"dtype", "shape", "data"}):
                 bad(f"{group}.{k} is not a {{dtype, shape, data}} map")
-            dtype = "<i8" if k == "rules" else "<f8"
+            dtype = "<i8" if k in INT_ARRAYS else "<f8"
             if enc["dtype"] != dtype or not isinstance(enc["data"], bytes):
                 bad(f"{group}.{k}: dtype {enc['dtype']!r} (expected {dtype!r}) or data not bytes")
             shape = enc["shape"]
@@ -160,8 +167,8 @@ def _decode_array(enc: Mapping) -> np.ndarray:
     return a
 
 
-def _check_shapes(arrays, norm, n_in, n_out) -> None:
-    a, b, c, rules, cons = (arrays[k] for k in ARRAY_NAMES)
+def _anfis_dims(arrays) -> tuple[int, int]:
+    a, b, c, rules, cons = (arrays[k] for k in anfis_numpy.ARRAY_NAMES)
     if a.ndim != 2 or b.shape != a.shape or c.shape != a.shape:
         raise ParamSetRejected("shape", f"a, b, c {a.shape}, {b.shape}, {c.shape} differ or are not 2-D")
     ni, nm = a.shape
@@ -169,15 +176,31 @@ def _check_shapes(arrays, norm, n_in, n_out) -> None:
         raise ParamSetRejected("shape", f"rules {rules.shape} is not (n_rules, {ni})")
     if cons.ndim != 3 or cons.shape[:2] != (rules.shape[0], ni + 1):
         raise ParamSetRejected("shape", f"consequents {cons.shape} is not ({rules.shape[0]}, {ni + 1}, n_out)")
-    no = cons.shape[2]
+    if np.any(rules < 0) or np.any(rules >= nm):
+        raise ParamSetRejected("invalid_value", f"rule indices outside [0, {nm})")
+    return ni, cons.shape[2]
+
+
+def _elman_dims(arrays) -> tuple[int, int]:
+    w1 = arrays["w1"]
+    if w1.ndim != 2:
+        raise ParamSetRejected("shape", f"w1 {w1.shape} is not (n_hidden, n_in)")
+    nh, ni = w1.shape
+    no = arrays["w3"].shape[0] if arrays["w3"].ndim == 2 else -1
+    for k, want in (("w2", (nh, nh)), ("b1", (nh,)), ("w3", (no, nh)), ("b3", (no,)), ("context", (nh,))):
+        if arrays[k].shape != want or no < 1:
+            raise ParamSetRejected("shape", f"{k} {arrays[k].shape} is not {want} (n_hidden {nh}, n_in {ni})")
+    return ni, no
+
+
+def _check_shapes(kind, arrays, norm, n_in, n_out) -> None:
+    ni, no = (_anfis_dims if kind == "anfis" else _elman_dims)(arrays)
     for k, want in (("x_mean", ni), ("x_std", ni), ("x_min", ni), ("x_max", ni), ("y_mean", no), ("y_std", no)):
         if norm[k].shape != (want,):
             raise ParamSetRejected("shape", f"norm.{k} {norm[k].shape} is not ({want},)")
     for dim, got, want in (("n_in", ni, n_in), ("n_out", no, n_out)):
         if want is not None and got != want:
             raise ParamSetRejected("shape", f"{dim} is {got}, the model expects {want}")
-    if np.any(rules < 0) or np.any(rules >= nm):
-        raise ParamSetRejected("invalid_value", f"rule indices outside [0, {nm})")
 
 
 def validate(msg: Mapping, *, live_version: int | None = None, n_in: int | None = None,
@@ -190,20 +213,24 @@ def validate(msg: Mapping, *, live_version: int | None = None, n_in: int | None 
     expected = checksum(msg)
     if msg["checksum"] != expected:
         raise ParamSetRejected("checksum", f"{msg['checksum']!r} != computed {expected!r}")
-    arrays = {k: _decode_array(msg["arrays"][k]) for k in ARRAY_NAMES}
+    kind = msg["kind"]
+    arrays = {k: _decode_array(msg["arrays"][k]) for k in KINDS[kind]}
     norm = {k: _decode_array(msg["norm"][k]) for k in NORM_NAMES}
-    _check_shapes(arrays, norm, n_in, n_out)
+    _check_shapes(kind, arrays, norm, n_in, n_out)
     for group, d in (("arrays", arrays), ("norm", norm)):
         for k, v in d.items():
             if not np.all(np.isfinite(v)):
                 raise ParamSetRejected("non_finite", f"{group}.{k} has {int(np.sum(~np.isfinite(v)))} NaN/inf")
-    for group, d, k in (("arrays", arrays, "a"), ("arrays", arrays, "b"), ("norm", norm, "x_std"),
-                        ("norm", norm, "y_std")):
+    positive = (("arrays", arrays, "a"), ("arrays", arrays, "b")) if kind == "anfis" else ()
+    for group, d, k in positive + (("norm", norm, "x_std"), ("norm", norm, "y_std")):
         if np.any(d[k] <= 0.0):
             raise ParamSetRejected("invalid_value", f"{group}.{k} must be > 0")
     if np.any(norm["x_min"] > norm["x_max"]):
         raise ParamSetRejected("invalid_value", "norm.x_min must be <= norm.x_max")
     if live_version is not None and msg["version"] <= live_version:
         raise ParamSetRejected("stale_version", f"version {msg['version']} is not above live {live_version}")
-    return ParamSet(msg["name"], msg["version"], msg["created_t_ns"], MappingProxyType(arrays),
+    if kind == "elman" and not (isinstance(msg["metrics"].get("context_gain"), float)
+                                and 0.0 <= msg["metrics"]["context_gain"] < 1.0):
+        raise ParamSetRejected("invalid_value", "metrics.context_gain must be a float in [0, 1)")
+    return ParamSet(kind, msg["name"], msg["version"], msg["created_t_ns"], MappingProxyType(arrays),
                     MappingProxyType(norm), MappingProxyType(dict(msg["metrics"])), msg["checksum"])
