@@ -1,48 +1,141 @@
 """Outage benchmark of learned INS-error compensation on real data (issue 6).
 
-GNSS is withheld in windows of 10, 30 and 60 s, the first after an initial training period (--train-s) and
-then one every window length plus --gap-s of GNSS in between; each window is scored against the withheld
-RTK fixes. Per window length and compensation, prints the RMS and the maximum over windows of the
-per-window maximum horizontal drift, and the change of that RMS against pure INS.
+Per window length and compensation (none = pure INS, anfis, elman), prints the RMS and the maximum over windows
+of the per-window maximum horizontal drift, scored against the withheld reference positions, and the change of
+that RMS against pure INS.
 
-    .venv/bin/python benchmarks/outage_learning.py [--dataset rtklibexplorer] [--target drift]
-    (`zennav replay rtklibexplorer --outage-every 90:30:120 --compensation elman --target drift` is one row)
+rtklibexplorer (one 500 s drive, --dataset rtklibexplorer): GNSS is withheld in windows of 10, 30 and 60 s, the
+first after an initial training period (--train-s) and then one every window length plus --gap-s of GNSS in
+between; the model learns online from the drive itself (samples while GNSS is good, prediction in the windows).
+`zennav replay rtklibexplorer --outage-every 90:30:120 --compensation elman --target drift` is one row.
+
+ansfl (61 quadrotor flights of 11-55 s, --dataset ansfl): one flight is too short to train on, so the model learns
+across flights: the flights are split in two folds (odd and even path numbers of each group); a model trained on
+the samples of every flight of one fold (full GNSS, learning from --learn-after-s) predicts, frozen, in the
+outage windows of the other fold's flights; each flight long enough gets one window starting at
+max(--first-s, half the flight). 30 s windows fit only 9 flights (>= 40 s); 60 s none.
+
+    .venv/bin/python benchmarks/outage_learning.py [--dataset rtklibexplorer|ansfl] [--target drift]
+        [--windows 10,30,60]
 """
 from __future__ import annotations
 
 import argparse
 import time
 
-from zennav.compensation import make_compensator
-from zennav.datasets.registry import load_dataset
+import numpy as np
+
+from zennav.compensation import MODELS, make_compensator, training_set
+from zennav.datasets.registry import ansfl_specs, load_dataset
 from zennav.metrics import evaluate
+from zennav.nav.learning import LearnSample
+from zennav.nav.navigator import Navigator
 from zennav.replay import run_replay
+
+HEADER = f"{'window':>7}{'compensation':>14}{'windows':>9}{'RMS of max m':>14}{'max m':>9}{'vs INS':>9}{'answered':>10}{'wall s':>8}"
+
+
+def _row(length: float, model: str, drifts: list[float], base: float | None, answered: int, wall: float) -> float:
+    d = np.asarray(drifts, dtype=float)
+    rms, mx = float(np.sqrt(np.mean(d**2))), float(d.max())
+    base = rms if base is None else base
+    print(f"{length:>6.0f}s{model:>14}{len(d):>9}{rms:>14.2f}{mx:>9.2f}{100.0 * (rms - base) / base:>8.0f}%"
+          f"{answered:>10}{wall:>8.1f}", flush=True)
+    return base
+
+
+def _answered(res) -> int:
+    return sum(1 for r in res.reports if r.source.startswith("learned_"))
+
+
+def drive(args) -> None:
+    ds = load_dataset(args.dataset)
+    print(f"{ds.name}: first window after {args.train_s:g} s, {args.gap_s:g} s of GNSS between windows; "
+          f"learned target: {args.target}; reference: {ds.truth.source}")
+    print(HEADER)
+    for length in (float(x) for x in args.windows.split(",")):
+        every = (length + args.gap_s, length, args.train_s)
+        base = None
+        for model in MODELS:
+            t0 = time.perf_counter()
+            res = run_replay(ds, outage_every=every, compensator=make_compensator(model, args.target))
+            m = evaluate(ds, res)
+            base = _row(length, model, [w["max_horizontal_m"] for w in m["outages"]], base, _answered(res),
+                        time.perf_counter() - t0)
+
+
+class Frozen:
+    """A trained compensator that predicts but learns nothing more (the held-out flights' own samples are not
+    used: the model is the other fold's)."""
+
+    def __init__(self, comp):
+        self.comp = comp
+
+    def add(self, samples) -> None:
+        pass
+
+    def predict(self, query):
+        return self.comp.predict(query)
+
+
+def quadrotor(args) -> None:
+    flights = {spec: load_dataset(spec) for spec in ansfl_specs()}
+    length_s = {spec: (ds.imu.t_ns[-1] - ds.initial.t_ns) / 1e9 for spec, ds in flights.items()}
+    folds = [[s for s in flights if int(s.rsplit("_", 1)[1]) % 2 == k] for k in (1, 0)]
+    print(f"ANSFL quadrotor: {len(flights)} flights, 2 folds (odd / even path numbers); learned target "
+          f"{args.target}; learning from {args.learn_after_s:g} s of each training flight; reference: the DJI RTK "
+          f"positions withheld in the window")
+    samples = {}
+    t0 = time.perf_counter()
+    for spec, ds in flights.items():
+        nav = Navigator(ds.config.with_(learning=True, learn_after_s=args.learn_after_s), ds.initial)
+        x, y, t = training_set(ds, args.target, navigator=nav)
+        samples[spec] = [LearnSample(int(ti), args.target, xi, yi) for xi, yi, ti in zip(x, y, t)]
+    print(f"training samples per fold: {[sum(len(samples[s]) for s in f) for f in folds]} "
+          f"({time.perf_counter() - t0:.0f} s)")
+    print(HEADER)
+    for length in (float(x) for x in args.windows.split(",")):
+        starts = {s: max(args.first_s, 0.5 * length_s[s]) for s in flights}
+        tests = {s: ds for s, ds in flights.items() if length_s[s] >= starts[s] + length}
+        if not tests:
+            print(f"{length:>6.0f}s  no flight is long enough")
+            continue
+        base = None
+        for model in MODELS:
+            t0 = time.perf_counter()
+            drifts, answered = [], 0
+            for k, fold in enumerate(folds):
+                comp = None
+                if model != "none":
+                    comp = make_compensator(model, args.target)
+                    comp.add([smp for s in folds[1 - k] for smp in samples[s]])
+                for spec in (s for s in fold if s in tests):
+                    ds, start = tests[spec], starts[spec]
+                    nav = Navigator(ds.config.with_(learning=True, learn_after_s=args.learn_after_s), ds.initial)
+                    res = run_replay(ds, outages=[(start, length)], navigator=nav,
+                                     compensator=Frozen(comp) if comp is not None else None)
+                    drifts += [w["max_horizontal_m"] for w in evaluate(ds, res)["outages"]]
+                    answered += _answered(res)
+            base = _row(length, model, drifts, base, answered, time.perf_counter() - t0)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--dataset", default="rtklibexplorer")
+    ap.add_argument("--dataset", default="rtklibexplorer", choices=("rtklibexplorer", "ansfl"))
     ap.add_argument("--target", default="drift", choices=["position", "velocity", "drift"])
-    ap.add_argument("--train-s", type=float, default=120.0, help="GNSS before the first window [s]")
-    ap.add_argument("--gap-s", type=float, default=60.0, help="GNSS between windows [s]")
-    ap.add_argument("--windows", default="10,30,60", help="window lengths [s]")
+    ap.add_argument("--windows", default=None, help="window lengths [s] (default 10,30,60; ansfl 10,30)")
+    ap.add_argument("--train-s", type=float, default=120.0, help="rtklibexplorer: GNSS before the first window [s]")
+    ap.add_argument("--gap-s", type=float, default=60.0, help="rtklibexplorer: GNSS between windows [s]")
+    ap.add_argument("--first-s", type=float, default=10.0, help="ansfl: earliest window start in a flight [s]")
+    ap.add_argument("--learn-after-s", type=float, default=3.0,
+                    help="ansfl: samples from this long after the start of a training flight [s]")
     args = ap.parse_args()
-
-    ds = load_dataset(args.dataset)
-    print(f"{ds.name}: first window after {args.train_s:g} s, {args.gap_s:g} s of GNSS between windows; "
-          f"learned target: {args.target}; reference: {ds.truth.source}")
-    print(f"{'window':>7}{'compensation':>14}{'windows':>9}{'RMS of max m':>14}{'max m':>9}{'vs INS':>9}{'wall s':>8}")
-    for length in (float(x) for x in args.windows.split(",")):
-        every = (length + args.gap_s, length, args.train_s)
-        base = None
-        for model in ("none", "anfis", "elman"):
-            t0 = time.perf_counter()
-            res = run_replay(ds, outage_every=every, compensator=make_compensator(model, args.target))
-            m = evaluate(ds, res)
-            rms, mx = m["outage_max_horizontal_rms_m"], m["outage_max_horizontal_max_m"]
-            base = base if base is not None else rms
-            print(f"{length:>6.0f}s{model:>14}{len(m['outages']):>9}{rms:>14.2f}{mx:>9.2f}"
-                  f"{100.0 * (rms - base) / base:>8.0f}%{time.perf_counter() - t0:>8.1f}")
+    if args.dataset == "ansfl":
+        args.windows = args.windows or "10,30"
+        quadrotor(args)
+    else:
+        args.windows = args.windows or "10,30,60"
+        drive(args)
 
 
 if __name__ == "__main__":

@@ -150,9 +150,10 @@ def make_compensator(model: str, target: str = "position", seed: int = 0):
     raise ValueError(f"unknown compensation model {model!r}; choose from {MODELS}")
 
 
-def training_set(ds, target: str = "position") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def training_set(ds, target: str = "position", navigator=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Features (N, n_features), targets (N, 2) and times t_ns (N,) of the learning samples of one target
-    variant that the engine emits over the whole of ds with full GNSS (the set the trainer would see)."""
+    variant that the engine emits over the whole of ds with full GNSS (the set the trainer would see).
+    navigator: the engine to run (its config must have learning on); default: ds's config with learning."""
     from .nav.navigator import Navigator
     from .replay import run_replay
 
@@ -167,6 +168,7 @@ def training_set(ds, target: str = "position") -> tuple[np.ndarray, np.ndarray, 
         def predict(self, query):
             return None
 
-    run_replay(ds, navigator=Navigator(ds.config.with_(learning=True), ds.initial), compensator=_Collector())
+    nav = navigator or Navigator(ds.config.with_(learning=True), ds.initial)
+    run_replay(ds, navigator=nav, compensator=_Collector())
     return (np.array([s.features for s in collected]), np.array([s.value for s in collected]),
             np.array([s.t_ns for s in collected], dtype=np.int64))
