@@ -1,7 +1,8 @@
 """Learning benchmark: ANFIS trainers side by side on the rtklibexplorer drive's training set (issue 6).
 
 Prints one table: the same training set fitted, in one run, by
-  hybrid_cg   zennav: consequents by least squares (LSE), premises by Fletcher-Reeves CG (strong Wolfe)
+  hybrid_cg   zennav: consequents by least squares (LSE), premises by Fletcher-Reeves CG (strong Wolfe);
+              by default the LSE is re-solved at every CG evaluation (variable projection, cg_projected)
   hybrid_gd   zennav: LSE + plain gradient descent on the premises (Jang's normalised step)
   adam        zennav: Adam on all parameters (premises and consequents), mini-batches of 256
   pso         zennav: particle swarm on the premises, LSE consequents for every particle
@@ -26,11 +27,11 @@ loads); all fits run one after another in this process. The clock counts only th
 set-up such as PSO's initial swarm evaluation), not the per-epoch RMSE evaluation made for the table. Each
 fit stops after --max-epochs epochs or once its clock passes --budget-s seconds, whichever comes first (the
 default cap is high enough that the budget binds for every method): an
-"epoch" costs very different amounts of time per method (one LSE + 5 CG iterations; one LSE + one gradient
+"epoch" costs very different amounts of time per method (20 CG iterations, each evaluation with its own LSE; one LSE + one gradient
 step; one pass of mini-batches; one swarm iteration of 20 LSE solves), so a common time budget, not a common
 epoch count, is what makes the final RMSEs comparable. No early stopping on tolerance. The zennav trainers
-run with TrainConfig's defaults (--train-option overrides a field), stepped through the same per-epoch
-functions that anfis_torch.train() runs.
+run with TrainConfig's defaults (--train-option overrides a field, e.g. cg_projected=false for Jang's
+alternation), stepped through anfis_torch.epoch_stepper, the per-epoch function that train() runs.
 
 Target. Per seed, target RMSE = --target-factor (1.02) x the lowest final training RMSE reached by any
 method with that seed (normalised units, mean over both outputs). It belongs to no single method: it is
@@ -127,7 +128,7 @@ _clock = time.perf_counter
 
 
 def run_zennav(method, rb, x_tr, y_tr, x_va, y_va, seed, max_epochs, budget_s, options=None) -> Run:
-    """The epoch functions that anfis_torch.train() runs, stepped here so the budget can stop them."""
+    """anfis_torch.epoch_stepper (the epoch train() runs), stepped here so the budget can stop it."""
     run = Run(method, seed)
     model = TorchAnfis(rb, n_out=y_tr.shape[1], device="cpu")
     x, y, xv = model.tensor(x_tr), model.tensor(y_tr), model.tensor(x_va)
@@ -141,7 +142,7 @@ def run_zennav(method, rb, x_tr, y_tr, x_va, y_va, seed, max_epochs, budget_s, o
 
     evaluate(0, 0.0)
     t0 = _clock()
-    step = anfis_torch._EPOCHS[method](model, x, y, cfg)  # PSO evaluates its initial swarm here
+    step = anfis_torch.epoch_stepper(model, x, y, cfg)  # PSO evaluates its initial swarm here
     clock = _clock() - t0
     for epoch in range(1, max_epochs + 1):
         t0 = _clock()
@@ -247,11 +248,13 @@ def main() -> None:
         try:
             if value == "None":
                 options[key] = None
+            elif isinstance(default, bool):
+                options[key] = {"true": True, "false": False}[value.lower()]
             elif isinstance(default, tuple):
                 options[key] = tuple(float(v) for v in value.split(","))
             else:
                 options[key] = type(default)(value) if default is not None else int(value)
-        except ValueError:
+        except (ValueError, KeyError):
             ap.error(f"--train-option {kv}: cannot convert {value!r} to {type(default).__name__}")
     global _clock
     _clock = CLOCKS[args.clock]

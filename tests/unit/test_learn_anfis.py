@@ -8,7 +8,16 @@ from zennav.learn import paramset
 torch = pytest.importorskip("torch")
 torch.set_num_threads(1)
 
-from zennav.learn.anfis_torch import METHODS, TorchAnfis, TrainConfig, fit_anfis, train  # noqa: E402
+from zennav.learn.anfis_torch import (  # noqa: E402
+    METHODS,
+    TorchAnfis,
+    TrainConfig,
+    _projected_grad,
+    epoch_stepper,
+    fit_anfis,
+    train,
+)
+from zennav.learn.lse import ridge_lstsq  # noqa: E402
 from zennav.learn.pso import PSOConfig  # noqa: E402
 
 
@@ -85,14 +94,59 @@ def test_rule_bases():
     np.testing.assert_allclose(g["c"][:, [0, -1]], np.stack([x[:, :2].min(0), x[:, :2].max(0)], axis=1))
 
 
-def test_hybrid_epochs_reduce_the_loss_monotonically():
+@pytest.mark.parametrize("projected", [True, False])
+def test_hybrid_epochs_never_raise_the_regularised_loss(projected):
     x, y = _sinc2d()
-    fit = fit_anfis(x, y, n_mf=4, config=TrainConfig(max_epochs=40, tol=0.0, cg_iters=5), device="cpu")
-    rmse = np.array([h["rmse"] for h in fit.train.history])
-    assert fit.train.stop_reason == "max_epochs" and len(rmse) == 41
-    # LSE is exact and every CG step satisfies the Armijo condition: J never rises (ridge adds ~1e-8)
-    assert np.all(np.diff(rmse[1:]) <= 1e-7 * rmse[1:-1])
-    assert rmse[-1] < 0.3 * rmse[1]
+    xn, yn = (x - x.mean(0)) / x.std(0), ((y - y.mean()) / y.std())[:, None]
+    model = TorchAnfis(an.grid_rulebase(xn, 4), n_out=1)
+    cfg = TrainConfig(cg_iters=5, cg_projected=projected)
+    xt, yt = model.tensor(xn), model.tensor(yn)
+    step = epoch_stepper(model, xt, yt, cfg)
+
+    def loss():  # J = MSE + ridge |theta|^2 / m: the LSE minimises it exactly, every CG step lowers it
+        with torch.no_grad():
+            mse = float(((model.forward(xt) - yt) ** 2).mean())
+        return mse + cfg.ridge * float((model.theta**2).sum()) / yt.shape[1], mse
+
+    history = []
+    for _ in range(40):
+        step()
+        history.append(loss())
+    j = np.array([h[0] for h in history])
+    assert np.all(np.diff(j) <= 1e-10 * j[:-1])
+    assert history[-1][1] < 0.1  # MSE; 1 (the variance of yn) for the initial zero consequents
+
+
+def test_projected_premise_gradient_matches_finite_differences():
+    x, arrays = _random_model(n_in=3, n_rules=4, n_out=2, seed=1)
+    y = np.random.default_rng(2).normal(size=(len(x), 2))
+    model = TorchAnfis(arrays)
+    xt, yt = model.tensor(x), model.tensor(y)
+    f, g = _projected_grad(model, xt, yt, model.p, 1e-3)
+    d = torch.as_tensor(np.random.default_rng(3).normal(size=g.shape), dtype=g.dtype)
+    h = 1e-6
+    fd = (float(_projected_grad(model, xt, yt, model.p + h * d, 1e-3)[0])
+          - float(_projected_grad(model, xt, yt, model.p - h * d, 1e-3)[0])) / (2 * h)
+    assert fd == pytest.approx(float(g @ d), rel=1e-6)
+    # J(p) is the least-squares minimum: the fixed-consequents loss at the LSE solution, plus the ridge term
+    theta = ridge_lstsq(model.design(xt, model.p), yt, 1e-3 * len(x))
+    mse = float(((model.design(xt, model.p) @ theta - yt) ** 2).mean())
+    assert float(f) == pytest.approx(mse + 1e-3 * float((theta**2).sum()) / 2, rel=1e-12)
+
+
+def test_epoch_stepper_is_the_epoch_that_train_runs():
+    x, y = _sinc2d(7)
+    xn, yn = (x - x.mean(0)) / x.std(0), ((y - y.mean()) / y.std())[:, None]
+    models = [TorchAnfis(an.grid_rulebase(xn, 3), n_out=1) for _ in range(2)]
+    cfg = TrainConfig(max_epochs=3, tol=0.0)
+    train(models[0], xn, yn, cfg)
+    step = epoch_stepper(models[1], models[1].tensor(xn), models[1].tensor(yn), cfg)
+    for _ in range(3):
+        step()
+    torch.testing.assert_close(models[0].p, models[1].p, rtol=0.0, atol=0.0)
+    torch.testing.assert_close(models[0].theta, models[1].theta, rtol=0.0, atol=0.0)
+    with pytest.raises(ValueError):
+        epoch_stepper(models[1], models[1].tensor(xn), models[1].tensor(yn), TrainConfig(method="sgd"))
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -120,3 +120,36 @@ def test_stops_at_max_iter_and_rejects_bad_wolfe_constants():
     assert res.n_iter == 5 and not res.converged and len(res.history) == 6
     with pytest.raises(ValueError):
         fr_cg(_rosenbrock, np.array([-1.2, 1.0]), c2=0.9)
+
+
+def _kinked(x):  # |x0 - 1|^(1/2) + (x1 - 2)^2: a cusp at the minimiser, where no strong Wolfe step exists
+    t = x[0] - 1.0
+    g0 = 0.5 * np.sign(t) * abs(t) ** -0.5 if t != 0.0 else 0.0
+    return abs(t) ** 0.5 + (x[1] - 2.0) ** 2, np.array([g0, 2.0 * (x[1] - 2.0)])
+
+
+def test_kink_is_crossed_by_armijo_steps_with_a_restart():
+    res = fr_cg(_kinked, np.zeros(2), gtol=0.0, max_iter=10)
+    assert ("armijo_only" in {r for _, r in res.restarts}) and res.f <= 1e-12
+    np.testing.assert_allclose(res.x, [1.0, 2.0], atol=1e-9)
+    f = [h["f"] for h in res.history]
+    assert all(b <= a + 1e-12 * max(1.0, abs(a)) for a, b in zip(f, f[1:]))
+    # without the zoom's width test the kink draws every trial step and the search fails
+    stuck = fr_cg(_kinked, np.zeros(2), gtol=0.0, max_iter=10, ls_xtol=0.0)
+    assert stuck.message == "line search failed along steepest descent" and stuck.f > 1e-3
+
+
+def test_first_decrease_carries_the_step_size_over_to_a_new_run():
+    rng = np.random.default_rng(0)
+    A, b = np.diag(np.logspace(0.0, 2.0, 10)) * 1e-4, rng.normal(size=10)  # 1/|g| is a poor first step
+
+    def fun(x):
+        return 0.5 * x @ A @ x - b @ x, A @ x - b
+
+    first = fr_cg(fun, np.zeros(10), gtol=0.0, max_iter=3)
+    last = first.history[-1]
+    assert first.last_decrease > 0.0 and last["alpha"] > 0.0
+    cold = fr_cg(fun, first.x, gtol=0.0, max_iter=3)
+    warm = fr_cg(fun, first.x, gtol=0.0, max_iter=3, first_decrease=first.last_decrease)
+    assert warm.history[1]["n_fev"] < cold.history[1]["n_fev"]  # fewer trial steps in the first search
+    assert warm.f <= cold.f + 1e-9 * abs(cold.f)

@@ -1,9 +1,12 @@
 """ANFIS in torch and its trainers (trainer side only; the edge runs anfis_numpy).
 
-Hybrid learning (J.-S. R. Jang, IEEE Trans. SMC 23(3) 1993, sec. IV; seed 000): each epoch a forward pass
-with the premises fixed solves the consequents by regularised least squares (lse.ridge_lstsq), then a
-backward pass with the consequents fixed moves the premises by Fletcher-Reeves CG (fr_cg, strong Wolfe line
-search, restarts; the CG starts from steepest descent each epoch since the LSE changed the objective).
+Hybrid learning (J.-S. R. Jang, IEEE Trans. SMC 23(3) 1993, sec. IV; seed 000): a forward pass with the
+premises fixed solves the consequents by regularised least squares (lse.ridge_lstsq), a backward pass with
+the consequents fixed moves the premises by Fletcher-Reeves CG (fr_cg, strong Wolfe line search, restarts;
+the CG starts from steepest descent each epoch, its first trial step from the previous epoch's last step).
+By default (cg_projected) every CG function evaluation is such a forward + backward pass, so the CG
+minimises the loss with the consequents at their least-squares optimum (variable projection); with
+cg_projected=False the LSE runs once per epoch and the CG sees fixed consequents (Jang's alternation).
 For comparison: the same with plain gradient descent on the premises (Jang's fixed step length k:
 dp = -k g / |g|), Adam on all parameters from zero consequents (D. P. Kingma, J. Ba, ICLR 2015, written
 out here; torch.optim is not used), and PSO on the premises with least-squares consequents (seed 003).
@@ -20,6 +23,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 import torch
@@ -112,7 +116,9 @@ class TrainConfig:
     tol: float = 1e-4  # ... or once the best training RMSE improved by < tol (relative) for `patience` epochs
     patience: int = 3
     ridge: float = 1e-8  # Tikhonov weight per sample in the least-squares step
-    cg_iters: int = 5  # FR-CG iterations on the premises per hybrid epoch
+    cg_iters: int = 20  # FR-CG iterations on the premises per hybrid epoch
+    cg_projected: bool = True  # hybrid_cg: LSE consequents at every CG evaluation (variable projection) ...
+    # ... or, False, consequents fixed from the epoch's LSE during the CG (Jang's alternation)
     cg_restart_every: int | None = None  # None: n = number of premise parameters
     cg_c2: float = 0.1
     gd_step: float = 0.05  # hybrid_gd: premise step length per gradient step
@@ -161,13 +167,37 @@ def _premise_grad(model: TorchAnfis, x, y, p, theta):
     return loss.detach(), g
 
 
-def train(model: TorchAnfis, x, y, config: TrainConfig = TrainConfig(), x_val=None, y_val=None) -> TrainResult:
-    """Fit model in place on normalised data x (N, n_in), y (N, n_out); optional validation set."""
+def _projected_grad(model: TorchAnfis, x, y, p, ridge: float):
+    """J(p) = min over theta of MSE + ridge |theta|^2 / m, and dJ/dp: the consequents by LSE at p, then the
+    premise gradient at those fixed consequents, which is the exact gradient of J(p) since dJ/dtheta = 0
+    there (variable projection: G. H. Golub, V. Pereyra, SIAM J. Numer. Anal. 10 (1973) 413-432; L.
+    Kaufman, BIT 15 (1975) 49-57). One design matrix serves the solve and the gradient."""
+    p = p.detach().requires_grad_(True)
+    A = model.design(x, p)
+    theta = ridge_lstsq(A.detach(), y, ridge * x.shape[0])
+    loss = ((A @ theta - y) ** 2).mean() + ridge * (theta**2).sum() / y.shape[1]
+    (g,) = torch.autograd.grad(loss, p)
+    return loss.detach(), g
+
+
+def epoch_stepper(model: TorchAnfis, x: torch.Tensor, y: torch.Tensor, config: TrainConfig) -> Callable[[], None]:
+    """The one-epoch step of config.method on tensors x (N, n_in), y (N, n_out) (normalised units).
+
+    Each call of the returned function trains model in place by one epoch (see TrainConfig); train() runs
+    it with its stopping rules, a benchmark can run it under a time budget. Set-up work is done here (PSO
+    evaluates its initial swarm), and state carried between epochs (Adam's moments, the CG step size, the
+    swarm) lives in the closure.
+    """
     if config.method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, not {config.method!r}")
+    return _EPOCHS[config.method](model, x, y, config)
+
+
+def train(model: TorchAnfis, x, y, config: TrainConfig = TrainConfig(), x_val=None, y_val=None) -> TrainResult:
+    """Fit model in place on normalised data x (N, n_in), y (N, n_out); optional validation set."""
     x, y = model.tensor(x), model.tensor(y).reshape(len(x), -1)
     val = None if x_val is None else (model.tensor(x_val), model.tensor(y_val).reshape(len(x_val), -1))
-    epoch_fn = _EPOCHS[config.method](model, x, y, config)
+    epoch_fn = epoch_stepper(model, x, y, config)
     t0 = time.perf_counter()
     history: list[dict] = []
 
@@ -194,11 +224,22 @@ def train(model: TorchAnfis, x, y, config: TrainConfig = TrainConfig(), x_val=No
 
 
 def _hybrid_cg(model, x, y, cfg):
+    decrease = None  # first-order decrease of the last CG step: the next epoch's first trial step
+
+    def fun(p):
+        if cfg.cg_projected:
+            return _projected_grad(model, x, y, p, cfg.ridge)
+        return _premise_grad(model, x, y, p, model.theta)
+
     def epoch():
-        model.theta = _lse(model, x, y, model.p, cfg.ridge)
-        res = fr_cg(lambda p: _premise_grad(model, x, y, p, model.theta), model.p, max_iter=cfg.cg_iters,
-                    gtol=0.0, restart_every=cfg.cg_restart_every, c2=cfg.cg_c2)
-        model.p = res.x.detach()
+        nonlocal decrease
+        if not cfg.cg_projected:
+            model.theta = _lse(model, x, y, model.p, cfg.ridge)
+        res = fr_cg(fun, model.p, max_iter=cfg.cg_iters, gtol=0.0, restart_every=cfg.cg_restart_every,
+                    c2=cfg.cg_c2, first_decrease=decrease)
+        model.p, decrease = res.x.detach(), res.last_decrease
+        if cfg.cg_projected:
+            model.theta = _lse(model, x, y, model.p, cfg.ridge)
     return epoch
 
 

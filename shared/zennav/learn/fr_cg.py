@@ -14,7 +14,8 @@ References:
   search", SIAM J. Optim. 16 (2005) 170-192: secant steps and a rounding allowance in the line search.
 
 Restarts (d_k = -g_k) happen every `restart_every` iterations (default: the dimension n), on Powell's
-orthogonality test, when the FR direction is not a descent direction, and after a failed line search.
+orthogonality test, when the FR direction is not a descent direction, after a step that met only the
+Armijo condition (the line search ran out of evaluations, e.g. at a kink of f) and after a failed line search.
 history[k]["restart"] names the reason when the direction taken from iterate k is -g_k by restart.
 
 Works on 1-D numpy arrays or 1-D torch tensors alike (only +, *, @ and float() are used), so this module
@@ -26,7 +27,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-RESTART_REASONS = ("periodic", "powell", "not_descent", "line_search_failure")
+RESTART_REASONS = ("periodic", "powell", "not_descent", "armijo_only", "line_search_failure")
 
 
 @dataclass
@@ -41,6 +42,7 @@ class CGResult:
     converged: bool
     message: str
     history: list[dict] = field(default_factory=list)
+    last_decrease: float | None = None  # -alpha g.d of the last accepted step (first-order decrease in f)
 
     @property
     def restarts(self) -> list[tuple[int, str]]:
@@ -72,27 +74,40 @@ def _interp_min(a0: float, f0: float, d0: float, a1: float, f1: float, d1: float
     return a if math.isfinite(a) else None
 
 
-def _strong_wolfe(phi, f0, d0, alpha1, c1, c2, max_evals, alpha_max, f_slack):
+def _strong_wolfe(phi, f0, d0, alpha1, c1, c2, max_evals, alpha_max, f_slack, x_rtol):
     """Step with f(alpha) <= f0 + c1 alpha d0 + f_slack and |phi'(alpha)| <= c2 |d0| (N-W Alg. 3.5, 3.6).
 
     f_slack absorbs rounding in f near a minimiser, where the decrease falls below f's resolution
     (the idea of Hager-Zhang's approximate Wolfe conditions).
     phi(alpha) -> (f, dphi, payload), f = dphi = inf where either is not finite (the zoom then bisects).
-    Returns (alpha, payload, n_evals); alpha is None on failure.
+    The zoom gives up once its interval is narrower than x_rtol times the step (a kink of f, where
+    |phi'| stays large on both sides of the minimiser, would otherwise draw all max_evals into it).
+    Returns (alpha, payload, n_evals, strong): the strong Wolfe step (strong True); else, once max_evals
+    are spent or the zoom gave up, the trial step of lowest f among those meeting the Armijo condition (strong False); else alpha None (failure).
     """
     evals = 0
     f_armijo = f0 + f_slack
+    best = [math.inf, None, None]  # f, alpha, payload of the best Armijo trial step
+
+    def trial(a):
+        nonlocal evals
+        f, d, pl = phi(a)
+        evals += 1
+        armijo = f <= f_armijo + c1 * a * d0
+        if armijo and f < best[0]:
+            best[:] = f, a, pl
+        return f, d, pl, armijo
 
     def zoom(lo, flo, dlo, hi, fhi, dhi):
-        nonlocal evals
         while evals < max_evals:
             width = abs(hi - lo)
+            if width <= x_rtol * max(abs(lo), abs(hi)):
+                break
             a = _interp_min(lo, flo, dlo, hi, fhi, dhi)
             if a is None or not (min(lo, hi) + 0.01 * width <= a <= max(lo, hi) - 0.01 * width):
                 a = 0.5 * (lo + hi)
-            f, d, pl = phi(a)
-            evals += 1
-            if f > f_armijo + c1 * a * d0 or f > flo + f_slack:
+            f, d, pl, armijo = trial(a)
+            if not armijo or f > flo + f_slack:
                 hi, fhi, dhi = a, f, d
             else:
                 if abs(d) <= -c2 * d0:
@@ -102,26 +117,29 @@ def _strong_wolfe(phi, f0, d0, alpha1, c1, c2, max_evals, alpha_max, f_slack):
                 lo, flo, dlo = a, f, d
         return None, None
 
-    a_prev, f_prev, d_prev = 0.0, f0, d0
-    a = min(alpha1, alpha_max)
-    while evals < max_evals:
-        f, d, pl = phi(a)
-        evals += 1
-        if f > f_armijo + c1 * a * d0 or (evals > 1 and f > f_prev + f_slack):
-            a_ok, pl_ok = zoom(a_prev, f_prev, d_prev, a, f, d)
-            return a_ok, pl_ok, evals
-        if abs(d) <= -c2 * d0:
-            return a, pl, evals
-        if d >= 0.0:
-            a_ok, pl_ok = zoom(a, f, d, a_prev, f_prev, d_prev)
-            return a_ok, pl_ok, evals
-        if a >= alpha_max:
-            return None, None, evals
-        a_next = _interp_min(a_prev, f_prev, d_prev, a, f, d)
-        a_next = 2.0 * a if a_next is None else min(max(a_next, 1.1 * a), 10.0 * a)
-        a_prev, f_prev, d_prev = a, f, d
-        a = min(a_next, alpha_max)
-    return None, None, evals
+    def search():
+        a_prev, f_prev, d_prev = 0.0, f0, d0
+        a = min(alpha1, alpha_max)
+        while evals < max_evals:
+            f, d, pl, armijo = trial(a)
+            if not armijo or (evals > 1 and f > f_prev + f_slack):
+                return zoom(a_prev, f_prev, d_prev, a, f, d)
+            if abs(d) <= -c2 * d0:
+                return a, pl
+            if d >= 0.0:
+                return zoom(a, f, d, a_prev, f_prev, d_prev)
+            if a >= alpha_max:
+                return None, None
+            a_next = _interp_min(a_prev, f_prev, d_prev, a, f, d)
+            a_next = 2.0 * a if a_next is None else min(max(a_next, 1.1 * a), 10.0 * a)
+            a_prev, f_prev, d_prev = a, f, d
+            a = min(a_next, alpha_max)
+        return None, None
+
+    a_ok, pl_ok = search()
+    if a_ok is not None:
+        return a_ok, pl_ok, evals, True
+    return best[1], best[2], evals, False
 
 
 def fr_direction(g_new, g, d, gg: float, *, periodic: bool, powell_nu: float | None):
@@ -157,6 +175,8 @@ def fr_cg(
     max_ls_evals: int = 30,
     alpha_max: float = 1e10,
     f_rel_slack: float = 1e-12,
+    first_decrease: float | None = None,
+    ls_xtol: float = 1e-3,
 ) -> CGResult:
     """Minimise fun with Fletcher-Reeves CG.
 
@@ -164,7 +184,12 @@ def fr_cg(
     ftol=0 disables this test), after max_iter iterations, or when a line search along steepest descent
     fails. restart_every defaults to n = x0.size; powell_nu=None disables Powell's test.
     Every step satisfies the strong Wolfe conditions with 0 < c1 < c2 < 1/2 (the first of them is the
-    Armijo sufficient-decrease condition, which tolerates f_rel_slack * max(1, |f|) of rounding in f).
+    Armijo sufficient-decrease condition, which tolerates f_rel_slack * max(1, |f|) of rounding in f), or,
+    where the line search found none (max_ls_evals trial steps, or a zoom interval narrower than ls_xtol
+    times the step), the Armijo condition alone, and the next direction is -g.
+    The first trial step has unit length, 1/|g_0|, unless first_decrease > 0 is given: the first-order
+    decrease -alpha g.d that the first step should make, e.g. CGResult.last_decrease of a previous run on a
+    nearby objective (N-W eq. 3.60 carried over; the later steps use eq. 3.60 within the run).
     """
     if not 0.0 < c1 < c2 < 0.5:
         raise ValueError("strong Wolfe FR needs 0 < c1 < c2 < 1/2")
@@ -181,7 +206,8 @@ def fr_cg(
     d = -g
     history = [dict(k=0, f=f, grad_norm=math.sqrt(gg), alpha=0.0, beta=0.0, restart=None, n_fev=1)]
     since_restart = 0
-    prev_step = None  # (alpha, g.d) of the last accepted step, for the initial-step guess (N-W eq. 3.60)
+    # (alpha, g.d) of the last accepted step, for the initial-step guess alpha * g.d / g_k.d_k (N-W eq. 3.60)
+    prev_step = (1.0, -float(first_decrease)) if first_decrease and first_decrease > 0.0 else None
     fresh = True  # d is the steepest-descent direction
     message, converged, k = "maximum iterations reached", False, 0
 
@@ -202,7 +228,8 @@ def fr_cg(
             return fa, da, (fa, ga)
 
         slack = f_rel_slack * max(1.0, abs(f))
-        alpha, new, evals = _strong_wolfe(phi, f, gd, alpha1, c1, c2, max_ls_evals, alpha_max, slack)
+        alpha, new, evals, strong = _strong_wolfe(phi, f, gd, alpha1, c1, c2, max_ls_evals, alpha_max, slack,
+                                                   ls_xtol)
         n_fev += evals
         if alpha is None:
             if fresh:
@@ -218,6 +245,8 @@ def fr_cg(
         since_restart += 1
         periodic = since_restart >= restart_every
         d, beta, restart = fr_direction(g_new, g, d, gg, periodic=periodic, powell_nu=powell_nu)
+        if not strong:  # FR's descent guarantee needs the strong Wolfe step (Al-Baali)
+            d, beta, restart = -g_new, 0.0, restart or "armijo_only"
         fresh = restart is not None
         if fresh:
             since_restart = 0
@@ -229,4 +258,5 @@ def fr_cg(
         if ftol > 0.0 and f_old - f <= ftol * max(1.0, abs(f)):
             message, converged = "function decrease below ftol", True
             break
-    return CGResult(x, f, math.sqrt(gg), k, n_fev, converged, message, history)
+    last = None if prev_step is None else -prev_step[0] * prev_step[1]
+    return CGResult(x, f, math.sqrt(gg), k, n_fev, converged, message, history, last)
