@@ -13,7 +13,8 @@ ansfl (61 quadrotor flights of 11-55 s, --dataset ansfl): one flight is too shor
 across flights: the flights are split in two folds (odd and even path numbers of each group); a model trained on
 the samples of every flight of one fold (full GNSS, learning from --learn-after-s) predicts, frozen, in the
 outage windows of the other fold's flights; each flight long enough gets one window starting at
-max(--first-s, half the flight). 30 s windows fit only 9 flights (>= 40 s); 60 s none.
+max(--first-s, min(half the flight, its end minus the window)). 30 s windows fit only 9 flights (>= 40 s); 60 s
+none.
 
     .venv/bin/python benchmarks/outage_learning.py [--dataset rtklibexplorer|ansfl] [--target drift]
         [--windows 10,30,60]
@@ -95,7 +96,7 @@ def quadrotor(args) -> None:
           f"({time.perf_counter() - t0:.0f} s)")
     print(HEADER)
     for length in (float(x) for x in args.windows.split(",")):
-        starts = {s: max(args.first_s, 0.5 * length_s[s]) for s in flights}
+        starts = {s: max(args.first_s, min(0.5 * length_s[s], length_s[s] - length)) for s in flights}
         tests = {s: ds for s, ds in flights.items() if length_s[s] >= starts[s] + length}
         if not tests:
             print(f"{length:>6.0f}s  no flight is long enough")
