@@ -41,6 +41,8 @@ def make_set(version: int, seed: int, n_in: int = N_IN, n_rules: int = 4, rmse=(
     if nan:
         arrays["c"][0, 0] = np.nan
     norm = anfis_numpy.fit_normalization(x, rng.normal(size=(64, 2)) * 3.0)
+    # a wide training range: these tests are about swapping; the domain check is tested in tests/unit
+    norm["x_min"], norm["x_max"] = np.full(n_in, -1e3), np.full(n_in, 1e3)
     ps = paramset.build(name, version, arrays, norm, {"target": "drift", "train_rmse": list(rmse)},
                         created_t_ns=time.time_ns())
     return ps, M.model_params_msg(ps)
@@ -299,7 +301,7 @@ def test_remote_trainer_from_other_netns_survives_link_cut(cluster, netns, tmp_p
     # a 50 Hz query stream from the edge side for the whole test
     sent: list[tuple[int, float]] = []  # (t_ns, wall time of the put)
     stop = threading.Event()
-    x = np.random.default_rng(9).normal(size=N_IN) + np.r_[30.0, np.zeros(N_IN - 1)]
+    x = drift_samples(1, 0, seed=9)[0]["features"]  # a query like the samples (inside the trained range)
 
     def stream():
         t, nxt = 3_000_000_000_000, time.perf_counter()
@@ -399,19 +401,26 @@ def test_ins_learning_loop_fuses_predictions_during_outage(cluster):
     tst = wait_counter(svc, "trainer", lambda c: c.get("samples_drift", 0) == model["samples"], 20,
                        "every sample at the trainer")
     assert tst["rejected"] == {} and last_status(svc, "predictor")["rejected"] == {}
-    # every query of the outage answered and matched; each answer judged by the core (fused or gated) unless it
-    # came too late: after the first fix at the outage's end (stale) or more than 3 s of data time after its
-    # query (late; the stream runs tens of times faster than real time, so a 60 ms stall is enough). The last
-    # answers may come after the stream's final nav_status: count them from the ins's heartbeat.
+    # every query of the outage answered and matched, except those the predictor refuses as outside the set's
+    # training range (off_domain: they expire at the ins as unanswered); each answer judged by the core (fused or
+    # gated) unless it came too late: after the first fix at the outage's end (stale) or more than 3 s of data
+    # time after its query (late; the stream runs tens of times faster than real time, so a 60 ms stall is
+    # enough). The last answers may come after the stream's final nav_status: count them from the heartbeats.
+    pc = wait_counter(svc, "predictor", lambda c: c.get("queries_answered", 0) + c.get("queries_off_domain", 0)
+                      == model["queries"], 20, "every query at the predictor")["counters"]
+    answered, off_domain = pc.get("queries_answered", 0), pc.get("queries_off_domain", 0)
     outcomes = ("fused", "not_fused", "stale", "late", "unmatched", "mismatched")
-    c = wait_counter(svc, "ins", lambda c: sum(c.get(f"learn_{o}", 0) for o in outcomes) == model["queries"], 20,
-                     "an outcome for every query at the ins")["counters"]
+    c = wait_counter(svc, "ins", lambda c: sum(c.get(f"learn_{o}", 0) for o in outcomes) == answered, 20,
+                     "an outcome for every answer at the ins")["counters"]
     lc = {o: c.get(f"learn_{o}", 0) for o in (*outcomes, "unanswered", "queries")}
     judged = lc["fused"] + lc["not_fused"]
-    assert lc["unmatched"] == lc["mismatched"] == lc["unanswered"] == 0 and judged >= model["queries"] - 3, lc
+    # an answer to a query that expired first (unanswered at the ins) is unmatched when it arrives
+    assert lc["mismatched"] == 0 and lc["unmatched"] <= lc["unanswered"] - off_domain, (lc, pc)
+    assert judged >= answered - 3, (lc, pc)
+    assert answered >= model["queries"] // 2, f"most queries refused as off-domain: {pc}"
     assert model["version"] == 1
     reports = aids.wait(lambda c: len(c.msgs()) >= judged and c.msgs(), 10, "the learned_drift reports")
     assert sum(m["fused"] for m in reports) == lc["fused"] and len(reports) == judged
     assert lc["fused"] >= 1, f"no answer fused: {lc}"
     print(f"\nins learning loop: {model['samples']} samples sent, set v1 on {v1['metrics']['samples']} samples; "
-          f"{model['queries']} queries in the outage, answers: {lc}")
+          f"{model['queries']} queries in the outage, {off_domain} refused as off-domain, answers: {lc}")
