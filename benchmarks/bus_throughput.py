@@ -6,6 +6,8 @@
    - "ins":  ingest -> ins (the full navigation engine per sample, solutions published);
    - "bus":  ingest -> a stand-in consumer that only receives, decodes and validates (transport ceiling).
    Rate = IMU samples consumed / wall time between the consumer's first and last message.
+   With --batch N (default 10) also ingest -> ins with `zennav-ingest --batch N`: up to N consecutive IMU samples
+   per imu_batch message (the same samples, order and solutions; one zenoh message and one validation per batch).
 2. Latency: IMU paced at 200 Hz (real time); latency = wall clock at nav/solution receive (this process)
    minus the IMU message's publish time (ingest), percentiles over every sample.
 Both peer-to-peer (peers on loopback, gossip) and through a router (`zennav router`, everyone a client).
@@ -13,7 +15,7 @@ Both peer-to-peer (peers on loopback, gossip) and through a router (`zennav rout
 Every case runs --repeat times (fresh processes each time); the rate printed is the median, with the range; the
 latency percentiles are over the samples of all repetitions.
 
-    .venv/bin/python benchmarks/bus_throughput.py [--duration 600] [--latency-duration 30] [--repeat 3] [--json out.json]
+    .venv/bin/python benchmarks/bus_throughput.py [--duration 600] [--latency-duration 30] [--repeat 3] [--batch 10] [--json out.json]
 """
 from __future__ import annotations
 
@@ -81,6 +83,8 @@ def sink_main(argv) -> int:
         st["n"] += 1
         if msg["schema"] == "imu":
             st["imu"] += 1
+        elif msg["schema"] == "imu_batch":
+            st["imu"] += len(msg["t_ns_list"])
         elif msg["schema"] == "stream_start":
             st["src"] = msg["src"]
         elif msg["schema"] == "stream_end":
@@ -94,7 +98,7 @@ def sink_main(argv) -> int:
     return run.serve()
 
 
-def run_case(kind: str, via_router: bool, duration: float, speed: str, want_latency: bool) -> dict:
+def run_case(kind: str, via_router: bool, duration: float, speed: str, want_latency: bool, batch: int = 1) -> dict:
     from zennav.bus import Bus
 
     procs = Procs()
@@ -130,13 +134,13 @@ def run_case(kind: str, via_router: bool, duration: float, speed: str, want_late
         if not bus.wait_alive(["ins"], 60):
             raise RuntimeError("consumer did not come up")
         ing = procs.start([PY, "-m", "zennav.services.ingest", "sim:car", "-o", f"duration_s={duration}",
-                           "--speed", speed, *bus_args], "ingest")
+                           "--speed", speed, "--batch", str(batch), *bus_args], "ingest")
         if not done.wait(duration * 2 + 120):
             raise RuntimeError("stream did not finish: " + ing.stderr.read().decode()[-2000:] if ing.poll() else "")
         ing.wait(60)
         st = status["stream"]
         n = status["imu_count"]
-        out = {"consumer": kind, "via": "router" if via_router else "peer-to-peer", "imu_samples": n,
+        out = {"consumer": kind, "via": "router" if via_router else "peer-to-peer", "batch": batch, "imu_samples": n,
                "expected": int(duration * 200), "wall_s": round(st["wall_s"], 3),
                "rate_per_s": round(n / st["wall_s"]), "lost": int(duration * 200) - n,
                "gap": st.get("gap", 0), "duplicate": st.get("duplicate", 0)}
@@ -160,22 +164,27 @@ def main() -> int:
     ap.add_argument("--role", default="bench", choices=("bench", "sink"))
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds for throughput (200 Hz)")
     ap.add_argument("--latency-duration", type=float, default=30.0, help="real-time seconds for latency")
+    ap.add_argument("--batch", type=int, default=10,
+                    help="also measure ingest -> ins with IMU sent in imu_batch messages of this many samples (1: not)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per case (median rate, pooled latency)")
     ap.add_argument("--json", default=None, help="also write the results here")
     args, rest = ap.parse_known_args()
     if args.role == "sink":
         return sink_main(rest)
     results = []
+    cases = [("bus", 1), ("ins", 1)] + ([("ins", args.batch)] if args.batch > 1 else [])
     for via_router in (False, True):
-        for kind in ("bus", "ins"):
-            runs = [run_case(kind, via_router, args.duration, "0", want_latency=False) for _ in range(args.repeat)]
+        for kind, batch in cases:
+            runs = [run_case(kind, via_router, args.duration, "0", want_latency=False, batch=batch)
+                    for _ in range(args.repeat)]
             rates = sorted(r["rate_per_s"] for r in runs)
             r = {"test": "throughput", **runs[0], "rate_per_s": int(np.median(rates)), "rates": rates,
                  "lost": sum(x["lost"] for x in runs), "gap": sum(x["gap"] for x in runs),
                  "duplicate": sum(x["duplicate"] for x in runs)}
             del r["wall_s"], r["imu_samples"]
             results.append(r)
-            print(f"throughput {r['via']:<13} ingest -> {kind:<3}: median {r['rate_per_s']:>7} IMU/s over "
+            what = kind if batch == 1 else f"{kind} (--batch {batch})"
+            print(f"throughput {r['via']:<13} ingest -> {what:<3}: median {r['rate_per_s']:>7} IMU/s over "
                   f"{len(runs)} runs (range {rates[0]}-{rates[-1]}; {runs[0]['expected']} samples each, "
                   f"lost {r['lost']}, gaps {r['gap']}, duplicates {r['duplicate']})", flush=True)
     for via_router in (False, True):

@@ -20,6 +20,8 @@ are tolerated (forward compatible within one version) but never used.
 Key grammar (DESIGN.md section 4), ``<base> = zennav/@v1/<vehicle>``::
 
     <base>/sensor/imu/<id>        imu             IMU increments (angle [rad], velocity [m/s]) over (t_prev, t_ns]
+                                  imu_batch       consecutive IMU samples in one message (ingest --batch, replay
+                                                  as fast as possible only): one cseq per sample
     <base>/sensor/gnss/<id>       gnss            GNSS fix (llh [rad, rad, m], NED std, optional NED velocity)
     <base>/sensor/stream          stream_start / stream_end   start (dataset, NavConfig, InitialState) and end markers
     <base>/attitude               attitude        attitude filter output at IMU rate
@@ -47,6 +49,8 @@ missing ones come. Because the sequence totally orders IMU and GNSS, every fix w
 sample's ``t_ns`` is handed to the core before that sample, without watermarks or timers. A gap that never
 fills (only possible if a sample is really lost) is skipped once more than ``max_hold`` messages are held,
 or at ``stream_end`` and is counted as ``gap``; duplicates (cseq already consumed) are counted and dropped.
+An ``imu_batch`` holds N consecutive IMU samples (none of another sensor between them) with cseq c .. c+N-1;
+``samples(msg)`` expands it into N ``imu`` messages, which consumers merge like any other.
 ``stream_start`` carries the NavConfig and InitialState, so the ins service builds its Navigator from the
 same data as the in-process replay; ``stream_end`` carries the counts so consumers can prove nothing was lost.
 
@@ -179,7 +183,7 @@ class Stream:
 
 # Sensor keys share one priority so that they stay in publish order (the cseq merge does not depend on it).
 STREAMS: tuple[Stream, ...] = (
-    Stream("sensor/imu", r"sensor/imu/[^/]+", ("imu",), "strict", QoS("reliable", "block", "DATA_HIGH")),
+    Stream("sensor/imu", r"sensor/imu/[^/]+", ("imu", "imu_batch"), "strict", QoS("reliable", "block", "DATA_HIGH")),
     Stream("sensor/gnss", r"sensor/gnss/[^/]+", ("gnss",), "strict", QoS("reliable", "block", "DATA_HIGH")),
     Stream("sensor/stream", r"sensor/stream", ("stream_start", "stream_end"), "nondecreasing",
            QoS("reliable", "block", "DATA_HIGH", latest=True)),
@@ -240,9 +244,11 @@ def qos_table() -> list[dict]:
 
 # ---------------------------------------------------------------------------------------------- schemas
 # Field specs: "int", "float", "str", "bool", "map", "any", ("vec", n) float list of length n, ("floats",)
-# float list of any length, ("opt", spec) None allowed. Header fields are common to every schema.
+# float list of any length, ("ints",) int list of any length, ("opt", spec) None allowed. Header fields are
+# common to every schema.
 INT, FLOAT, STR, BOOL, MAP, ANY = "int", "float", "str", "bool", "map", "any"
 FLOATS = ("floats",)
+INTS = ("ints",)
 
 
 def VEC(n: int) -> tuple:
@@ -274,6 +280,9 @@ def _schema(schema_name: str, schema_version: int, doc: str, /, **spec) -> None:
 
 _schema("imu", 1, "IMU increments over (t_prev, t_ns], body frame FRD: dtheta [rad], dvel [m/s]; dt_ns the interval.",
         **SENSOR, dt_ns=INT, dtheta=VEC(3), dvel=VEC(3))
+_schema("imu_batch", 1, "N >= 1 consecutive IMU samples with cseq .. cseq+N-1 (see imu): t_ns_list, dt_ns_list (N "
+        "ints, t_ns_list strictly increasing, its last = t_ns), dtheta, dvel (3N floats, sample after sample).",
+        **SENSOR, t_ns_list=INTS, dt_ns_list=INTS, dtheta=FLOATS, dvel=FLOATS)
 _schema("gnss", 1, "GNSS fix: llh [rad, rad, m], std_ned [m]; v_n/std_v_n [m/s] NED or None; fix: FixType; num_sats (-1 unknown).",
         **SENSOR, llh=VEC(3), std_ned=VEC(3), v_n=OPT(VEC(3)), std_v_n=OPT(VEC(3)), fix=INT, num_sats=INT)
 _schema("stream_start", 1, "Start of a sensor stream: dataset name, NavConfig and InitialState (as maps, SI), "
@@ -408,6 +417,24 @@ def _has_all_defaults(cls) -> bool:
 # ---------------------------------------------------------------------------------------------- builders
 def imu_msg(t_ns: int, dtheta, dvel, dt_ns: int, cseq: int) -> dict:
     return make("imu", t_ns, cseq=int(cseq), dt_ns=int(dt_ns), dtheta=floats(dtheta), dvel=floats(dvel))
+
+
+def imu_batch_msg(t_ns: list, dt_ns: list, dtheta: list, dvel: list, cseq: int) -> dict:
+    """imu_batch of N samples: t_ns, dt_ns (N ints), dtheta, dvel (N lists of 3 floats); cseq of the first."""
+    return make("imu_batch", t_ns[-1], cseq=int(cseq), t_ns_list=list(t_ns), dt_ns_list=list(dt_ns),
+                dtheta=[x for v in dtheta for x in v], dvel=[x for v in dvel for x in v])
+
+
+def samples(msg: dict) -> list[dict]:
+    """The sensor messages a (validated) sensor message stands for: an imu_batch's N imu messages (same header,
+    cseq c .. c+N-1), any other message itself."""
+    if msg["schema"] != "imu_batch":
+        return [msg]
+    th, dv, c = msg["dtheta"], msg["dvel"], msg["cseq"]
+    head = {"src": msg["src"], "seq": msg["seq"], "pub_ns": msg["pub_ns"]}
+    return [{"schema": "imu", "v": 1, "t_ns": t, "cseq": c + i, "dt_ns": d, "dtheta": th[3 * i:3 * i + 3],
+             "dvel": dv[3 * i:3 * i + 3], **head}
+            for i, (t, d) in enumerate(zip(msg["t_ns_list"], msg["dt_ns_list"]))]
 
 
 def gnss_msg(fix, cseq: int) -> dict:
@@ -545,6 +572,11 @@ def _check_value(spec, v, name: str) -> str:
         kind = spec[0]
         if kind == "opt":
             return "" if v is None else _check_value(spec[1], v, name)
+        if kind == "ints":
+            if not isinstance(v, list):
+                return f"bad_type: {name} is {type(v).__name__}, want list"
+            bad = next((i for i, x in enumerate(v) if type(x) is not int), None)
+            return "" if bad is None else f"bad_type: {name}[{bad}] is {type(v[bad]).__name__}, want int"
         if kind in ("vec", "floats"):
             if not isinstance(v, list):
                 return f"bad_type: {name} is {type(v).__name__}, want list"
@@ -643,8 +675,11 @@ def validate_map(msg: Any, key: str | None = None) -> str:
     fast = _FAST.get(name)
     if fast is None:
         fast = _FAST[name] = _compile_fast(schema)
-    if fast(msg) and name not in ("model_params", "nav_status"):  # straight-line check of every field; the loop
-        return ""  # explains failures
+    if fast(msg):  # straight-line check of every field; the loop below explains failures
+        if name == "imu_batch":
+            return check_imu_batch(msg)
+        if name not in ("model_params", "nav_status"):
+            return ""
     needs_norm = False
     isfinite = math.isfinite
     for fname, spec, code, n, optional in _plan(schema):
@@ -679,8 +714,23 @@ def validate_map(msg: Any, key: str | None = None) -> str:
         r = check_nav_status(msg)
         if r:
             return r
+    if name == "imu_batch":
+        r = check_imu_batch(msg)
+        if r:
+            return r
     if needs_norm:
         _normalise(schema, msg)
+    return ""
+
+
+def check_imu_batch(msg: dict) -> str:
+    """Consistency of an imu_batch (types already checked): '' or 'code: detail'."""
+    t, n = msg["t_ns_list"], len(msg["t_ns_list"])
+    if n == 0 or len(msg["dt_ns_list"]) != n or len(msg["dtheta"]) != 3 * n or len(msg["dvel"]) != 3 * n:
+        return (f"bad_shape: imu_batch of {n} times needs {n} dt_ns and 3x{n} dtheta/dvel, got "
+                f"{len(msg['dt_ns_list'])}, {len(msg['dtheta'])}, {len(msg['dvel'])}")
+    if t[-1] != msg["t_ns"] or any(b <= a for a, b in zip(t, t[1:])):
+        return "bad_value: imu_batch t_ns_list must increase strictly and end at t_ns"
     return ""
 
 
@@ -753,6 +803,8 @@ def _compile_fast(schema: Schema) -> Callable[[dict], bool]:
             n = inner[1]
             elems = " and ".join(f"type({v}[{j}]) is float and isfinite({v}[{j}])" for j in range(n))
             cond = f"type({v}) is list and len({v}) == {n}" + (f" and {elems}" if n else "")
+        elif inner == INTS:
+            cond = f"type({v}) is list and all(type(x) is int for x in {v})"
         elif isinstance(inner, tuple) and inner[0] in ("vec", "floats"):
             ln = f" and len({v}) == {inner[1]}" if inner[0] == "vec" else ""
             cond = f"type({v}) is list{ln} and all(type(x) is float for x in {v}) and all(map(isfinite, {v}))"
@@ -815,8 +867,9 @@ class Validator:
             sk = (key, msg["src"])
             last = self.last_t.get(sk)
             t = msg["t_ns"]
-            if last is not None and (t < last or (policy == "strict" and t == last)):
-                return self._reject(key, f"time_backwards: t_ns {t} after {last} on {key}")
+            first = msg["t_ns_list"][0] if msg["schema"] == "imu_batch" else t
+            if last is not None and (first < last or (policy == "strict" and first == last)):
+                return self._reject(key, f"time_backwards: t_ns {first} after {last} on {key}")
             self.last_t[sk] = t
         self.accepted += 1
         return msg, ""

@@ -36,7 +36,7 @@ def _spec_schema(spec) -> dict:
         if spec[0] == "opt":
             inner = _spec_schema(spec[1])
             return {"anyOf": [inner, {"type": "null"}]}
-        arr = {"type": "array", "items": {"type": "number"}}
+        arr = {"type": "array", "items": {"type": "integer" if spec[0] == "ints" else "number"}}
         if spec[0] == "vec":
             arr.update(minItems=spec[1], maxItems=spec[1])
         return arr

@@ -105,6 +105,42 @@ def test_attitude_node_equals_core_batch_bit_for_bit_in_any_arrival_order():
     assert np.abs(err).max() < np.radians(0.25)
 
 
+def test_attitude_node_takes_imu_batches_as_their_samples():
+    """ingest --batch: runs of consecutive imu messages sent as imu_batch give the same attitudes."""
+    cfg, _ = load_config()
+    msgs = _stream(12.0)
+
+    def run(stream):
+        out = []
+        node = AttitudeNode(out.append, log, cfg, K.imu())
+        for key, m in stream:
+            node.on_sensor(key, m)
+        return out
+
+    batched, run_ = [], []
+
+    def flush():
+        if run_:
+            ts = [m["t_ns"] for m in run_]
+            b = M.imu_batch_msg(ts, [m["dt_ns"] for m in run_], [m["dtheta"] for m in run_],
+                                [m["dvel"] for m in run_], run_[0]["cseq"])
+            b.update(src="ingest.x", seq=0, pub_ns=0)
+            batched.append((K.imu(), b))
+            run_.clear()
+
+    for key, m in msgs:
+        if m["schema"] == "imu":
+            run_.append(m)
+            if len(run_) == 9:
+                flush()
+        else:
+            flush()
+            batched.append((key, m))
+    flush()
+    assert len(batched) < len(msgs) / 4
+    assert run(batched) == run(msgs)
+
+
 def test_attitude_node_late_join_and_without_solution_zero_rate():
     cfg, _ = load_config()
     msgs = _stream(5.0)

@@ -114,6 +114,31 @@ def test_validator_time_per_key_and_source_and_ints_normalised():
     assert v.check(K.nav_status(), M.encode(st))[0] is not None  # non-decreasing is enough for status
 
 
+def test_imu_batch_validates_expands_and_checks_time_across_batches():
+    th = [[1e-4 * i, -2e-4, 3e-4] for i in range(3)]
+    dv = [[0.01, 0.0, -0.049 * i] for i in range(3)]
+    b = hdr(M.imu_batch_msg([10, 20, 30], [10, 10, 10], th, dv, 5))
+    v = M.Validator()
+    msg, reason = v.check(K.imu("0"), M.encode(b))
+    assert reason == ""
+    one = M.samples(msg)
+    assert [(m["schema"], m["cseq"], m["t_ns"], m["dt_ns"]) for m in one] == [("imu", 5, 10, 10), ("imu", 6, 20, 10),
+                                                                            ("imu", 7, 30, 10)]
+    assert [m["dtheta"] for m in one] == th and [m["dvel"] for m in one] == dv
+    assert all(M.validate_map(m, K.imu("0")) == "" for m in one)  # each expanded sample is a valid imu message
+    assert M.samples(imu(40)) == [imu(40)]
+    # the next message must start after the batch's last sample (strict time per key and source)
+    assert v.check(K.imu("0"), M.encode(hdr(M.imu_batch_msg([30, 40], [0, 10], th[:2], dv[:2], 8))))[1].startswith(
+        "time_backwards")
+    assert v.check(K.imu("0"), M.encode(imu(31)))[1] == ""
+    for bad, code in ((dict(t_ns_list=[10, 30, 20], t_ns=20), "bad_value"), (dict(t_ns=31), "bad_value"),
+                      (dict(dtheta=[0.0] * 8), "bad_shape"), (dict(dt_ns_list=[10, 10]), "bad_shape"),
+                      (dict(t_ns_list=[], dt_ns_list=[], dtheta=[], dvel=[]), "bad_shape"),
+                      (dict(t_ns_list=[10, 20.0, 30]), "bad_type"), (dict(dvel=[math.nan] * 9), "not_finite")):
+        assert M.Validator().check(K.imu("0"), M.encode(dict(b, **bad)))[1].split(":")[0] == code, bad
+    assert M.Validator().check(K.gnss("0"), M.encode(b))[1].startswith("wrong_schema")
+
+
 def test_validator_never_raises_on_garbage():
     v = M.Validator()
     rnd = random.Random(1)

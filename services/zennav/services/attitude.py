@@ -129,7 +129,8 @@ class AttitudeNode:
             else:
                 self.counts["foreign_source"] += 1
                 return
-        self.merger.push(msg["cseq"], (key, msg), self._consume)
+        for m in M.samples(msg):  # an imu_batch: each of its samples
+            self.merger.push(m["cseq"], (key, m), self._consume)
 
     def on_solution(self, msg: dict) -> None:
         """nav_solution -> omega_in_n for the IMU samples that follow."""

@@ -3,7 +3,8 @@ zennav ``.npz`` dataset file) -> the sensor keys, in one time-ordered sequence.
 
 Wiring table
     publishes  <base>/sensor/stream      stream_start (dataset, NavConfig, InitialState, counts) / stream_end
-               <base>/sensor/imu/<id>    imu    (increments, as the dataset gives them: no conversion here)
+               <base>/sensor/imu/<id>    imu    (increments, as the dataset gives them: no conversion here), or
+                                         imu_batch with --batch N: up to N consecutive samples per message
                <base>/sensor/gnss/<id>   gnss
     waits for  liveliness of --wait-for services (default: ins) and a subscriber on the IMU key
     subscribes <base>/nav/status         to see consumers acknowledge stream_end (--exit-on-end)
@@ -15,7 +16,9 @@ shared sensor-channel sequence ``cseq`` (see zennav.messages).
 
 Pacing: --speed 1 is real time, --speed 10 ten times faster, --speed 0 (or max) as fast as the consumers
 drain: the sensor keys are reliable with blocking congestion control and the consumers' queues are bounded,
-so the publisher waits instead of losing samples.
+so the publisher waits instead of losing samples. --batch N (as fast as possible only) sends up to N
+consecutive IMU samples (never across a GNSS fix) as one imu_batch message: one zenoh message and one
+validation per N samples, the same samples, cseqs and order (consumers expand it with zennav.messages.samples).
 """
 from __future__ import annotations
 
@@ -123,6 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("source", nargs="?", default="sim:car", help="dataset spec (default sim:car), or npz:<path>")
     p.add_argument("-o", "--option", action="append", default=[], help="loader option key=value (repeatable)")
     p.add_argument("--speed", default="1", help="pacing: 1 real time, N times faster, 0 or 'max' as fast as possible")
+    p.add_argument("--batch", type=int, default=1,
+                   help="with --speed 0: up to N consecutive IMU samples per imu_batch message (default 1: imu)")
     p.add_argument("--outage", action="append", default=[], metavar="START:DURATION",
                    help="withhold GNSS for DURATION s starting START s after the initial time (repeatable)")
     p.add_argument("--outage-every", default=None, metavar="PERIOD:DURATION:FIRST", help="periodic outages [s]")
@@ -149,6 +154,8 @@ def main(argv=None) -> int:
     log = run.log
     k = run.keys
     speed = 0.0 if str(args.speed).lower() in ("0", "max", "inf") else float(args.speed)
+    if args.batch < 1 or (args.batch > 1 and speed > 0):
+        raise SystemExit("--batch N needs N >= 1, and N > 1 only with --speed 0 (paced samples go one by one)")
     stats = {"imu": 0, "gnss": 0, "cseq": 0}
     run.counters = lambda: dict(stats)
     acks: dict[str, int] = {}
@@ -194,7 +201,7 @@ def main(argv=None) -> int:
         if run.stopping:
             return 0
         run.set_state("running", f"streaming {ds.name}")
-        last_cseq = _stream(run, ds, events, windows, speed, p_stream, p_imu, p_gnss, stats, k)
+        last_cseq = _stream(run, ds, events, windows, speed, p_stream, p_imu, p_gnss, stats, args.batch)
         if last_cseq is None:
             return 0
         log.info("stream done: %d IMU, %d GNSS, last cseq %d", stats["imu"], stats["gnss"], last_cseq)
@@ -220,7 +227,7 @@ def main(argv=None) -> int:
         run.close()
 
 
-def _stream(run, ds, events, windows, speed, p_stream, p_imu, p_gnss, stats, k) -> int | None:
+def _stream(run, ds, events, windows, speed, p_stream, p_imu, p_gnss, stats, batch: int = 1) -> int | None:
     imu, gnss = ds.imu, ds.gnss
     t_imu = imu.t_ns
     cseq = 0
@@ -238,11 +245,30 @@ def _stream(run, ds, events, windows, speed, p_stream, p_imu, p_gnss, stats, k) 
     prev_t = t0_data
     put_imu, put_gnss = p_imu.put, p_gnss.put
     make = M.make
+    held: list[int] = []  # --batch: indices of the IMU samples not yet sent
+
+    def flush() -> None:
+        nonlocal prev_t
+        if not held:
+            return
+        ts = [t_list[i] for i in held]
+        dts = [b - a for a, b in zip([prev_t] + ts[:-1], ts)]
+        put_imu(M.imu_batch_msg(ts, dts, [dth[i] for i in held], [dv[i] for i in held], cseq - len(held) + 1))
+        prev_t = ts[-1]
+        stats["imu"] += len(held)
+        held.clear()
+
     for n, (kind, idx) in enumerate(events):
         if run.stopping:
             return None
         cseq += 1
         if kind == "imu":
+            if batch > 1:
+                held.append(idx)
+                if len(held) == batch:
+                    flush()
+                stats["cseq"] = cseq
+                continue
             t = t_list[idx]
             if speed > 0:
                 due = wall0 + (t - t0_data) / 1e9 / speed
@@ -253,9 +279,14 @@ def _stream(run, ds, events, windows, speed, p_stream, p_imu, p_gnss, stats, k) 
             prev_t = t
             stats["imu"] += 1
         else:
+            if held:  # the samples before this fix go first, in their own batch (cseq order = publish order)
+                cseq -= 1
+                flush()
+                cseq += 1
             put_gnss(M.gnss_msg(gnss.fix_at(idx), cseq))
             stats["gnss"] += 1
         stats["cseq"] = cseq
+    flush()
     cseq += 1
     p_stream.put(M.make("stream_end", prev_t, cseq=cseq, counts={"imu": stats["imu"], "gnss": stats["gnss"]},
                         last_cseq=cseq))

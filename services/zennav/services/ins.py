@@ -1,7 +1,8 @@
 """ins service: the navigation engine (zennav.nav.navigator.Navigator) on the bus.
 
 Wiring table
-    subscribes <base>/sensor/**          stream_start -> new Navigator(config, initial); imu -> on_imu;
+    subscribes <base>/sensor/**          stream_start -> new Navigator(config, initial); imu (and each sample
+                                         of an imu_batch) -> on_imu;
                                          gnss -> on_gnss; stream_end -> final status (acknowledges the end)
                <base>/learn/correction   the predictor's answer to one of our learn/query messages: fused
                                          as a pseudo-measurement (Navigator.on_correction; --learning only)
@@ -190,6 +191,10 @@ class InsNode:
             n = sum(self.drops.values())
             if n <= 3 or n % 1000 == 0:
                 self.log.warning("dropped %s from %s: not the live stream (%s)", schema, msg["src"], self.src)
+            return
+        if schema == "imu_batch":
+            for m in M.samples(msg):
+                self.merger.push(m["cseq"], m, self._consume)
             return
         self.merger.push(msg["cseq"], msg, self._consume)
 
