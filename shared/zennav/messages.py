@@ -432,7 +432,8 @@ def samples(msg: dict) -> list[dict]:
         return [msg]
     th, dv, c = msg["dtheta"], msg["dvel"], msg["cseq"]
     head = {"src": msg["src"], "seq": msg["seq"], "pub_ns": msg["pub_ns"]}
-    return [{"schema": "imu", "v": 1, "t_ns": t, "cseq": c + i, "dt_ns": d, "dtheta": th[3 * i:3 * i + 3],
+    v = SCHEMAS["imu"].version
+    return [{"schema": "imu", "v": v, "t_ns": t, "cseq": c + i, "dt_ns": d, "dtheta": th[3 * i:3 * i + 3],
              "dvel": dv[3 * i:3 * i + 3], **head}
             for i, (t, d) in enumerate(zip(msg["t_ns_list"], msg["dt_ns_list"]))]
 
