@@ -29,7 +29,7 @@ import numpy as np
 from zennav.compensation import MODELS, make_compensator, training_set
 from zennav.datasets.registry import ansfl_specs, load_dataset
 from zennav.metrics import evaluate
-from zennav.nav.learning import LearnSample
+from zennav.nav.learning import TARGETS, LearnSample
 from zennav.nav.navigator import Navigator
 from zennav.replay import run_replay
 
@@ -123,7 +123,7 @@ def quadrotor(args) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dataset", default="rtklibexplorer", choices=("rtklibexplorer", "ansfl"))
-    ap.add_argument("--target", default="drift", choices=["position", "velocity", "drift"])
+    ap.add_argument("--target", default="drift", choices=TARGETS)
     ap.add_argument("--windows", default=None, help="window lengths [s] (default 10,30,60; ansfl 10,30)")
     ap.add_argument("--train-s", type=float, default=120.0, help="rtklibexplorer: GNSS before the first window [s]")
     ap.add_argument("--gap-s", type=float, default=60.0, help="rtklibexplorer: GNSS between windows [s]")

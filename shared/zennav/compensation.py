@@ -9,7 +9,9 @@ while GNSS is lost with a predicted error rate and its 1-sigma (nav/learning.py)
   service; a first-order TS model extrapolates without bound outside it).
 - "elman" (seed 002): Elman network trained online on a sliding window of the newest samples; predicts
   only while its training error is under its threshold.
-The 1-sigma of a prediction is the model's RMS training residual per output.
+The 1-sigma of a prediction, per output: ANFIS, the larger of the RMS error on the newest quarter of the
+samples of a fit on the rest and the RMS training residual (anfis_torch.fit_anfis_sigma); Elman, the RMS of its
+one-step-ahead residuals over the window (each computed before the network learned that sample).
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ import numpy as np
 
 from .learn import anfis_numpy
 from .learn.elman import Elman
-from .nav.learning import FEATURES, TARGETS, LearnQuery, LearnSample
+from .nav.learning import FEATURES, OUTPUTS, TARGETS, LearnQuery, LearnSample
 
 MODELS = ("none", "anfis", "elman")
 
@@ -39,7 +41,7 @@ class AnfisCompensator:
         self._y: deque = deque(maxlen=window)
         self._stale = False
         self.model: tuple[dict, dict] | None = None
-        self.rate_std: np.ndarray | None = None
+        self.sigma: np.ndarray | None = None
         self.trainings: list[dict] = []
 
     def add(self, samples: list[LearnSample]) -> None:
@@ -50,13 +52,14 @@ class AnfisCompensator:
                 self._stale = True
 
     def _train(self) -> None:
-        from .learn.anfis_torch import TrainConfig, fit_anfis  # torch only when training in-process
+        from .learn.anfis_torch import TrainConfig, fit_anfis_sigma  # torch only when training in-process
 
         x, y = np.array(self._x), np.array(self._y)
-        fit = fit_anfis(x, y, n_rules=self.n_rules, config=TrainConfig(max_epochs=self.max_epochs, seed=self.seed))
+        fit = fit_anfis_sigma(x, y, n_rules=self.n_rules, config=TrainConfig(max_epochs=self.max_epochs, seed=self.seed))
         self.model = (fit.arrays, fit.norm)
-        self.rate_std = np.maximum(np.asarray(fit.metrics["train_rmse"], dtype=float), 1e-6)
-        self.trainings.append({"samples": len(x), **{k: fit.metrics[k] for k in ("epochs", "wall_s", "train_rmse")}})
+        self.sigma = np.asarray(fit.metrics["sigma"], dtype=float)
+        self.trainings.append({"samples": len(x), **{k: fit.metrics[k] for k in ("epochs", "wall_s", "train_rmse",
+                                                                                  "sigma")}})
         self._stale = False
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:
@@ -70,7 +73,7 @@ class AnfisCompensator:
         if anfis_numpy.domain_excess(norm, query.features) > self.max_domain_excess:
             self.off_domain += 1
             return None
-        return anfis_numpy.predict(arrays, norm, query.features[None, :])[0], self.rate_std
+        return anfis_numpy.predict(arrays, norm, query.features[None, :])[0], self.sigma
 
 
 class ElmanCompensator:
@@ -111,7 +114,7 @@ class ElmanCompensator:
             self._first.append((x, y))
             if len(self._first) == self.window:
                 xs, ys = (np.array(v) for v in zip(*self._first))
-                self.net = Elman(len(FEATURES[self.target]), self.n_hidden, 2, window=self.window, threshold=self.threshold,
+                self.net = Elman(len(FEATURES[self.target]), self.n_hidden, len(OUTPUTS[self.target]), window=self.window, threshold=self.threshold,
                                  norm=anfis_numpy.fit_normalization(xs, ys), seed=self.seed)
                 self.net.set_aligned()  # samples only come from a converged filter
                 for xi, yi in self._first:
@@ -151,7 +154,7 @@ def make_compensator(model: str, target: str = "position", seed: int = 0):
 
 
 def training_set(ds, target: str = "position", navigator=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Features (N, n_features), targets (N, 2) and times t_ns (N,) of the learning samples of one target
+    """Features (N, n_features), targets (N, n_outputs) and times t_ns (N,) of the learning samples of one target
     variant that the engine emits over the whole of ds with full GNSS (the set the trainer would see).
     navigator: the engine to run (its config must have learning on); default: ds's config with learning."""
     from .nav.navigator import Navigator

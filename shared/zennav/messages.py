@@ -312,7 +312,7 @@ _schema("nav_status", 1, "ins health: GNSS state, core counters, rejected (bus v
         alignment=OPT(MAP), adaptive_r=OPT(BOOL), measurement_noise=OPT(MAP))
 ALIGN_STATES = ("coarse", "fine", "aligned")
 _schema("learn_sample", 1, "Training pair emitted while GNSS is valid: features and target (normalisation is the "
-        "trainer's), variant names the target definition (zennav.nav.learning: 'position', 'velocity', 'drift').",
+        "trainer's), variant names the target definition (zennav.nav.learning.TARGETS; target has OUTPUTS[variant] values).",
         features=FLOATS, target=FLOATS, variant=STR)
 _schema("learn_query", 1, "Prediction request of the ins while GNSS is lost (zennav.nav.learning.LearnQuery): "
         "t_ns the query time, target the variant, features as in learn_sample, dt_s the interval of a rate target "

@@ -12,6 +12,7 @@ import numpy as np
 
 from .datasets.errors import DataError
 from .metrics import evaluate, format_table, write_outputs
+from .nav.learning import TARGETS
 from .replay import run_replay
 
 
@@ -91,9 +92,10 @@ _outage_opts = [
     click.option("--json", "as_json", is_flag=True, help="Print metrics.json instead of the table."),
     click.option("--compensation", type=click.Choice(["none", "anfis", "elman"]), default="none", show_default=True,
                  help="Learned INS-error compensation during outages (ANFIS: seed 000, Elman: seed 002)."),
-    click.option("--target", type=click.Choice(["position", "velocity", "drift"]), default="position", show_default=True,
-                 help="What the model learns: the filter's position corrections (seed 000) or its velocity "
-                 "corrections, i.e. increments of INS minus filter (seed 002)."),
+    click.option("--target", type=click.Choice(TARGETS), default="position", show_default=True,
+                 help="What the model learns (zennav.nav.learning): the filter's position corrections (seed 000), its "
+                 "velocity corrections, i.e. increments of INS minus filter (seed 002), the drift of a free INS "
+                 "since a fix, or the vehicle's body-frame velocity (a learned motion model)."),
     click.option("-v", "--verbose", count=True, help="Log engine events (-v: warnings, -vv: debug)."),
 ]
 

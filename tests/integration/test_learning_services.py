@@ -43,7 +43,7 @@ def make_set(version: int, seed: int, n_in: int = N_IN, n_rules: int = 4, rmse=(
     norm = anfis_numpy.fit_normalization(x, rng.normal(size=(64, 2)) * 3.0)
     # a wide training range: these tests are about swapping; the domain check is tested in tests/unit
     norm["x_min"], norm["x_max"] = np.full(n_in, -1e3), np.full(n_in, 1e3)
-    ps = paramset.build(name, version, arrays, norm, {"target": "drift", "train_rmse": list(rmse)},
+    ps = paramset.build(name, version, arrays, norm, {"target": "drift", "sigma": list(rmse)},
                         created_t_ns=time.time_ns())
     return ps, M.model_params_msg(ps)
 

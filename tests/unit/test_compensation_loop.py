@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from zennav.compensation import make_compensator
-from zennav.nav.learning import DRIFT_FEATURES, RATE_FEATURES
+from zennav.nav.learning import BODY_FEATURES, DRIFT_FEATURES, RATE_FEATURES, TARGETS
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
 
@@ -47,6 +47,26 @@ def test_elman_predicts_only_under_its_error_threshold(drive):
     assert comp.predict(query) is None and comp.off_domain == 1
 
 
+def test_body_velocity_correction_observes_the_velocity_error(drive):
+    """A body velocity answer (here the true one) pulls an INS velocity error back; a wrong-size answer is
+    refused and counted."""
+    from zennav.nav.learning import LearnQuery
+    from zennav.nav.navigator import Navigator
+
+    nav = Navigator(drive.config.with_(learning=True), drive.initial)
+    run_replay(drive, navigator=nav)
+    s = nav.state
+    v0_n, v_b = s.v_n.copy(), s.C_nb.T @ s.v_n
+    s.vn += 1.0  # an INS velocity error of 1 m/s north, and a covariance that admits it
+    nav.kf.P[3:6, 3:6] += np.eye(3)
+    q = LearnQuery(nav.t_ns, "body_velocity", np.zeros(len(BODY_FEATURES)), 1.0)
+    assert not nav.on_correction(q, [0.0, 0.0], [0.1, 0.1])  # 2 values for a 3-output target
+    assert nav.counters["correction_malformed"] == 1
+    assert nav.on_correction(q, v_b, [0.05, 0.05, 0.05])
+    assert np.abs(nav.state.v_n - v0_n).max() < 0.1
+    assert nav.counters["learned_body_velocity_fused"] == 1
+
+
 def test_samples_only_after_convergence_and_queries_only_without_gnss(drive):
     from zennav.nav.navigator import Navigator
 
@@ -63,7 +83,7 @@ def test_samples_only_after_convergence_and_queries_only_without_gnss(drive):
         nav.on_imu(t, drive.imu.dtheta[k], drive.imu.dvel[k])
         samples += nav.pop_samples()
         queries += nav.pop_queries()
-    assert {s.target for s in samples} == {q.target for q in queries} == {"position", "velocity", "drift"}
+    assert {s.target for s in samples} == {q.target for q in queries} == set(TARGETS)
     assert min(s.t_ns - t0 for s in samples) >= 30e9
     assert all(100e9 < q.t_ns - t0 < 121e9 for q in queries)
     # No samples in the settling time after the outage.
@@ -75,6 +95,16 @@ def test_samples_only_after_convergence_and_queries_only_without_gnss(drive):
     assert drift_q[0].features.shape == (len(DRIFT_FEATURES),)
     taus = [q.features[0] for q in drift_q]  # time since the last fix grows through the outage
     assert taus == sorted(taus) and taus[-1] > 19.0
+    # Body velocity: one sample per second of GNSS and one query per second of outage; a car moves forward
+    # (sideslip and vertical speed are small against its speed).
+    body = [s for s in samples if s.target == "body_velocity"]
+    body_q = [q for q in queries if q.target == "body_velocity"]
+    assert body[0].features.shape == (len(BODY_FEATURES),) and body[0].value.shape == (3,)
+    assert np.diff([s.t_ns for s in body]).min() >= 1e9 - 1 and np.median(np.diff([s.t_ns for s in body])) < 1.1e9
+    assert 18 <= len(body_q) <= 21 and all(1.0 <= q.dt_s < 2.0 for q in body_q)
+    assert np.median([q.dt_s for q in body_q]) == pytest.approx(1.0, abs=0.02)
+    v_b = np.array([s.value for s in body])
+    assert np.median(v_b[:, 0]) > 5.0 and np.all(np.abs(v_b[:, 1:]) < 0.1 * np.abs(v_b[:, :1]) + 0.2)
     # Drift samples: the shadow INS error grows with its age (seeded run, MEMS IMU).
     drift = [s for s in samples if s.target == "drift"]
     old = [np.hypot(*s.value) for s in drift if s.features[0] > 40.0]

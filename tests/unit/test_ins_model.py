@@ -1,4 +1,4 @@
-"""The error model against the mechanization it linearises, the GNSS measurement Jacobians,
+"""The error model against the mechanization it linearises, the GNSS and body-velocity measurement Jacobians,
 the Joseph update, and the drift of a stationary IMU explained by its biases."""
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from zennav.nav import earth
-from zennav.nav.aiding import antenna_velocity, position_model, velocity_model
+from zennav.nav.aiding import antenna_velocity, body_velocity_model, position_model, velocity_model
 from zennav.nav.eskf import ErrorStateKF, discretize, error_model, process_noise_psd
 from zennav.nav.navigator import Navigator
 from zennav.nav.rotation import euler_to_dcm, euler_to_quat, rotvec_to_quat, quat_multiply
@@ -83,15 +83,21 @@ def test_gnss_measurement_jacobians():
     lever_b = np.array([0.8, -0.3, -1.2])
     omega_b = np.array([0.1, -0.2, 0.5])
     fix_llh, fix_v = s.llh + [1e-7, -1e-7, 0.5], s.v_n + [0.1, 0.0, -0.1]
+    v_b = s.C_nb.T @ s.v_n + [0.3, -0.2, 0.1]
     z0, H_pos = position_model(s, lever_b, fix_llh, np.zeros(3), 0.0)
     zv0, H_vel = velocity_model(s, lever_b, omega_b, fix_v)
+    zb0, H_body = body_velocity_model(s, v_b)
+    assert zb0 == pytest.approx([-0.3, 0.2, -0.1])
     for _ in range(20):
         dx = rng.normal(0, 1, 15) * EPS
         est = perturbed(s, dx)
         z1, _ = position_model(est, lever_b, fix_llh, np.zeros(3), 0.0)
         zv1, _ = velocity_model(est, lever_b, omega_b - dx[9:12], fix_v)
+        zb1, _ = body_velocity_model(perturbed(s, 0.1 * dx), v_b)  # smaller: the phi * dv term is second order
         assert z1 - z0 == pytest.approx(H_pos @ dx, abs=1e-6)
         assert zv1 - zv0 == pytest.approx(H_vel @ dx, abs=1e-6)
+        assert zb1 - zb0 == pytest.approx(H_body @ (0.1 * dx), abs=1e-7)
+    assert np.linalg.norm(H_body[:, 6:9]) > 5.0  # attitude couples strongly at this speed: not vacuous
     assert antenna_velocity(s, np.zeros(3), omega_b) == pytest.approx(s.v_n)
 
 

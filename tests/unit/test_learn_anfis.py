@@ -15,6 +15,7 @@ from zennav.learn.anfis_torch import (  # noqa: E402
     _projected_grad,
     epoch_stepper,
     fit_anfis,
+    fit_anfis_sigma,
     train,
 )
 from zennav.learn.lse import ridge_lstsq  # noqa: E402
@@ -191,3 +192,21 @@ def test_fit_to_paramset_to_numpy_prediction():
     single = an.predict(ps.arrays, ps.norm, x[300])  # one sample, as the edge calls it
     assert single.shape == (2,)
     np.testing.assert_allclose(single, y_hat[0], rtol=1e-12)
+
+
+def test_sigma_is_the_held_out_error_when_the_fit_interpolates():
+    """fit_anfis_sigma: the 1-sigma is the newest quarter's RMS error of a fit on the rest (or the training
+    RMSE, whichever is larger); with many rules on few noisy samples the training RMSE understates it."""
+    rng = np.random.default_rng(8)
+    x = rng.uniform(-2.0, 2.0, size=(120, 3))
+    y = np.stack([np.sin(x[:, 0]) + x[:, 1], np.full(120, 0.5), x[:, 2] ** 2], axis=1) + rng.normal(0, 0.3, (120, 3))
+    cfg = TrainConfig(max_epochs=5)
+    fit = fit_anfis_sigma(x, y, n_rules=12, config=cfg, device="cpu")
+    first = fit_anfis(x[:90], y[:90], n_rules=12, config=cfg, device="cpu")
+    held = np.sqrt(np.mean((an.predict(first.arrays, first.norm, x[90:]) - y[90:]) ** 2, axis=0))
+    np.testing.assert_allclose(fit.metrics["holdout_rmse"], held, rtol=1e-9)
+    np.testing.assert_allclose(fit.metrics["sigma"], np.maximum(held, fit.metrics["train_rmse"]), rtol=1e-15)
+    assert np.all(np.array(fit.metrics["sigma"]) > 0.25)  # at least about the noise (0.3) on every output
+    assert np.mean(fit.metrics["sigma"]) > 1.2 * np.mean(fit.metrics["train_rmse"])
+    with pytest.raises(ValueError):
+        fit_anfis_sigma(x[:1], y[:1], n_rules=1, config=cfg)

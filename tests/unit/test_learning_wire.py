@@ -9,7 +9,7 @@ import pytest
 
 from zennav import messages as M
 from zennav.learn import anfis_numpy, paramset
-from zennav.nav.learning import DRIFT_FEATURES, LearnQuery, LearnSample
+from zennav.nav.learning import BODY_FEATURES, DRIFT_FEATURES, LearnQuery, LearnSample
 
 K = M.Keys("car")
 N_IN = len(DRIFT_FEATURES)
@@ -22,7 +22,7 @@ def _set(version=1, seed=0, n_in=N_IN, name="anfis-drift", metrics=None):
     arrays = anfis_numpy.cluster_rulebase(x, 3, seed=seed)
     arrays["consequents"] = rng.normal(size=(3, n_in + 1, 2))
     norm = anfis_numpy.fit_normalization(x, rng.normal(size=(40, 2)))
-    return paramset.build(name, version, arrays, norm, metrics or {"target": "drift", "train_rmse": [0.3, 0.4]},
+    return paramset.build(name, version, arrays, norm, metrics or {"target": "drift", "sigma": [0.3, 0.4]},
                           created_t_ns=5)
 
 
@@ -87,7 +87,7 @@ def test_predictor_swaps_validated_sets_and_keeps_the_live_one_on_rejection():
     assert not node.on_model(key, _wire(M.model_params_msg(v1)), 0)  # the same set again: a duplicate
     assert node.sets["duplicate"] == 1 and node.sets["rejected"] == 0
     for bad in (_set(1, seed=2), _set(2, seed=3, n_in=N_IN - 1), _set(3, seed=4, name="other"),
-                _set(4, seed=5, metrics={"train_rmse": [0.3, 0.4]})):
+                _set(4, seed=5, metrics={"sigma": [0.3, 0.4]})):
         assert not node.on_model(key, _wire(M.model_params_msg(bad)), 0)
     assert dict(node.rejected) == {"model_stale_version": 1, "model_shape": 1, "model_schema": 2}
     assert len(bus_rej) == 4 and node.live["drift"].version == 1
@@ -208,6 +208,38 @@ def test_trainer_schedule_and_published_set_accepted_by_the_predictor():
     assert msg["metrics"]["samples"] == 120 and msg["metrics"]["n_rules"] == 2  # 120 // (4 * 14) rules
     pred = PredictorNode(lambda m: None, LOG)
     assert pred.on_model(K.learn_model("anfis-drift"), _wire(msg), 0) and pred.live["drift"].version == 7
+
+
+def test_body_velocity_sets_have_three_outputs_end_to_end():
+    """The 3-output target (forward, right, down body velocity) through trainer, wire and predictor; a set with
+    the wrong output count for its target is refused."""
+    pytest.importorskip("torch")
+    from zennav.services.predictor import PredictorNode
+    from zennav.services.trainer import TrainerNode
+
+    published = []
+    node = TrainerNode(lambda name, msg: published.append(msg), LOG, ("body_velocity",), min_samples=100,
+                       retrain_samples=200, retrain_every_s=0, max_epochs=3)
+    rng = np.random.default_rng(2)
+    n_in = len(BODY_FEATURES)
+    node.on_sample(M.make("learn_sample", 0, features=[0.0] * n_in, target=[0.0, 0.0], variant="body_velocity"))
+    assert node.counts["ignored_shape"] == 1  # two values for a three-output target
+    for i in range(200):
+        x, e = rng.normal(size=n_in), rng.normal(0.0, 0.1, 3)
+        node.on_sample(M.make("learn_sample", i, features=list(x), target=list([10 + x[0], 0.5 * x[5], 0.0] + e),
+                              variant="body_velocity"))
+    msg = node.train("body_velocity")
+    assert len(msg["metrics"]["sigma"]) == 3 and msg["metrics"]["sigma"][0] < 0.5
+    pred = PredictorNode(lambda m: None, LOG)
+    key = K.learn_model("anfis-body_velocity")
+    assert pred.on_model(key, _wire(msg), 0)
+    q = dict(M.make("learn_query", 1, target="body_velocity", features=[0.1] * n_in, dt_s=1.0), src="ins", seq=3)
+    a = pred.on_query(q)
+    assert len(a["value"]) == 3 and a["std"] == msg["metrics"]["sigma"] and abs(a["value"][0] - 10.1) < 0.5
+    two = _set(msg["version"] + 1, n_in=n_in, name="anfis-body_velocity",
+               metrics={"target": "body_velocity", "sigma": [0.3, 0.4]})
+    assert not pred.on_model(key, _wire(M.model_params_msg(two)), 0)
+    assert dict(pred.rejected) == {"model_shape": 1} and pred.live["body_velocity"].version == msg["version"]
 
 
 def test_elman_trainer_publishes_once_ready_and_the_predictor_runs_the_same_network():

@@ -9,8 +9,9 @@ Wiring table
                <base>/learn/query       learn_query from the ins while GNSS is lost
                <base>/nav/status        GNSS state (shown in the status; queries come only during outages)
     publishes  <base>/learn/correction  one correction per answered query: t_ns and kind of the query, value
-                                        (N, E) and std = the set's training RMSE per output, model name and
-                                        version, query_src/query_seq (the query's header)
+                                        (the target's outputs, zennav.nav.learning.OUTPUTS) and std = the set's
+                                        metrics.sigma per output, model name and version, query_src/query_seq
+                                        (the query's header)
                <base>/svc/predictor/status   live versions, sets accepted/rejected per reason, last rejection,
                                         swap latency percentiles, queries answered / without a model
 
@@ -19,8 +20,9 @@ put in the status and in the bus's rejected map, and the live set stays): the bu
 fields, finite numbers, array shape vs data length: codes decode_error, bad_shape, not_finite, ...); the
 target variant in metrics.target; zennav.learn.paramset.validate: schema (format, fields, name equal to the
 key's <name>), checksum (sha256 over the set, computed by the trainer), shapes (n_in = the target's feature
-count, n_out = 2), finite values, value ranges, version newer than the live one of that target (codes
-model_<reason> in the rejected map); a finite positive train_rmse per output (the 1-sigma). A set equal to the
+count, n_out = the target's output count), finite values, value ranges, version newer than the live one of that
+target (codes model_<reason> in the rejected map); a finite positive metrics.sigma per output (the 1-sigma of a
+prediction; see zennav.compensation for how each model's is measured). A set equal to the
 live one (same version and checksum, e.g. the late-joiner reply and the publication both arriving) is counted
 as a duplicate, not a rejection.
 
@@ -47,10 +49,8 @@ import numpy as np
 
 from zennav import messages as M
 from zennav.learn import anfis_numpy, elman, paramset
-from zennav.nav.learning import FEATURES
+from zennav.nav.learning import FEATURES, OUTPUTS
 from zennav.service import ServiceRunner, add_bus_args
-
-N_OUT = 2  # N and E
 
 
 @dataclass(frozen=True)
@@ -134,18 +134,19 @@ class PredictorNode:
                 self.sets["duplicate"] += 1
                 return False
             try:
+                n_out = len(OUTPUTS[target])
                 ps = paramset.validate(M.paramset_of(msg), live_version=None if cur is None else cur.version,
-                                       n_in=len(FEATURES[target]), n_out=N_OUT, name=name)
+                                       n_in=len(FEATURES[target]), n_out=n_out, name=name)
             except paramset.ParamSetRejected as e:
                 self.reject(key, f"model_{e.reason}: {e.detail}", False)
                 return False
             except Exception as e:  # a map paramset_of cannot read
                 self.reject(key, f"model_schema: {type(e).__name__}: {e}", False)
                 return False
-            std = np.asarray(ps.metrics.get("train_rmse", []), dtype=float).ravel() \
-                if isinstance(ps.metrics.get("train_rmse"), list) else np.zeros(0)
-            if std.shape != (N_OUT,) or not np.all(np.isfinite(std)) or not np.all(std > 0):
-                self.reject(key, f"model_invalid_value: metrics.train_rmse must be {N_OUT} finite numbers > 0", False)
+            sigma = ps.metrics.get("sigma")
+            std = np.asarray(sigma, dtype=float).ravel() if isinstance(sigma, list) else np.zeros(0)
+            if std.shape != (n_out,) or not np.all(np.isfinite(std)) or not np.all(std > 0):
+                self.reject(key, f"model_invalid_value: metrics.sigma must be {n_out} finite numbers > 0", False)
                 return False
             now = time.time_ns()
             extra = {} if ps.kind == "anfis" else dict(context_gain=float(ps.metrics["context_gain"]),
@@ -158,7 +159,7 @@ class PredictorNode:
             if latency:
                 self.swap_latency_ns.append(now - msg["pub_ns"])
                 self.validate_ns.append(now - recv_ns)
-        self.log.info("live %s: %s v%d (was %s), train rmse %s", target, name, ps.version,
+        self.log.info("live %s: %s v%d (was %s), 1-sigma %s", target, name, ps.version,
                       "none" if cur is None else f"v{cur.version}", [round(s, 4) for s in new.std])
         self.on_change(self.detail())
         return True

@@ -1,7 +1,7 @@
 """trainer service (issue 6, DESIGN.md sections 5 and 6): collects the ins's training samples per target variant,
 learns the INS error and publishes versioned parameter sets. --model anfis (default): retrains ANFIS by the
 hybrid learner (least squares for the consequents + Fletcher-Reeves CG for the premises,
-zennav.learn.anfis_torch.fit_anfis) on the newest samples. --model elman (seed 002): an Elman network learns
+zennav.learn.anfis_torch.fit_anfis_sigma) on the newest samples. --model elman (seed 002): an Elman network learns
 online from every sample, in arrival order, on its sliding window (zennav.compensation.ElmanCompensator, the
 same object the in-process replay uses); on the schedule below its weights and context are published, once its
 training error is under its threshold (before that nothing is published, as the seed's network does not
@@ -15,14 +15,14 @@ Wiring table
                <base>/svc/trainer/status   samples per target, trainings, versions, link losses, device
 
 ANFIS rule count: --n-rules, reduced while samples are few to at most one consequent parameter per 4 samples per
-output (n_rules * (n_in + 1) <= N / 4), so that the training RMSE, the predictions' 1-sigma, is not that of an
-interpolating fit.
+output (n_rules * (n_in + 1) <= N / 4), so that the fit does not interpolate its samples.
 
 Schedule: per target, the newest --window samples are kept; a training starts when at least --min-samples are
 held and either --retrain-samples new ones arrived or --retrain-every seconds passed since the last training
 with new samples. Training runs on its own thread, so samples keep arriving meanwhile. The set's metrics carry
-the target, the sample count and time span, the device, epochs, wall time and the training RMSE per output
-(the predictor's 1-sigma).
+the target, the sample count and time span, the device, epochs, wall time, the training RMSE per output and
+sigma, the predictor's 1-sigma per output: ANFIS, the larger of the training RMSE and the RMS error on the
+newest quarter of the samples of a fit on the rest; Elman, its one-step-ahead residual RMS over the window.
 
 Versions: one integer per model name, +1 per training. At start the trainer asks for the latest set of each of
 its names on the bus and continues above it (else from --first-version), so a restarted trainer's sets are
@@ -47,7 +47,7 @@ import numpy as np
 from zennav import messages as M
 from zennav.compensation import ElmanCompensator
 from zennav.learn import paramset
-from zennav.nav.learning import FEATURES, TARGETS, LearnSample
+from zennav.nav.learning import FEATURES, OUTPUTS, TARGETS, LearnSample
 
 MODELS = ("anfis", "elman")
 from zennav.service import ServiceRunner, add_bus_args
@@ -90,7 +90,7 @@ class TrainerNode:
         if t not in self.data:
             self.counts["ignored_variant"] += 1
             return
-        if len(msg["features"]) != len(FEATURES[t]) or len(msg["target"]) != 2:
+        if len(msg["features"]) != len(FEATURES[t]) or len(msg["target"]) != len(OUTPUTS[t]):
             self.counts["ignored_shape"] += 1
             return
         with self.cv:
@@ -156,7 +156,7 @@ class TrainerNode:
         std = comp.std()
         version = self._next_version(target)
         net = comp.net
-        metrics = {"target": target, "method": "elman_online", "train_rmse": std.tolist(), "samples": comp.learned,
+        metrics = {"target": target, "method": "elman_online", "sigma": std.tolist(), "samples": comp.learned,
                    "window": net.window, "n_hidden": net.n_hidden, "context_gain": float(net.context_gain),
                    "window_rmse_normalised": float(net.train_rmse), "t_last_ns": int(rows[-1].t_ns) if rows else 0}
         arrays = {k: v.copy() for k, v in net.arrays().items()}
@@ -164,14 +164,14 @@ class TrainerNode:
         msg = M.model_params_msg(paramset.build(name, version, arrays, comp.norm(), metrics, kind="elman"))
         self.publish(name, msg)
         self.counts[f"trainings_{target}"] += 1
-        self.last[target] = {"version": version, "samples": comp.learned, "train_rmse": [round(v, 4) for v in std]}
-        self.log.info("published %s v%d: learned %d samples online, residual rms %s", name, version, comp.learned,
-                      self.last[target]["train_rmse"])
+        self.last[target] = {"version": version, "samples": comp.learned, "sigma": [round(v, 4) for v in std]}
+        self.log.info("published %s v%d: learned %d samples online, one-step residual rms %s", name, version,
+                      comp.learned, self.last[target]["sigma"])
         return msg
 
     def _fit_anfis(self, target: str) -> dict | None:
         """Fit ANFIS on a snapshot of the target's window and publish the set."""
-        from zennav.learn.anfis_torch import TrainConfig, fit_anfis
+        from zennav.learn.anfis_torch import TrainConfig, fit_anfis_sigma
 
         with self.cv:
             rows = list(self.data[target])
@@ -185,7 +185,7 @@ class TrainerNode:
         # that the training RMSE (the predictor's 1-sigma) is not that of an interpolating fit
         n_rules = max(1, min(self.n_rules, len(x) // (4 * (x.shape[1] + 1))))
         try:
-            fit = fit_anfis(x, y, n_rules=n_rules, device=self.device,
+            fit = fit_anfis_sigma(x, y, n_rules=n_rules, device=self.device,
                             config=TrainConfig(method="hybrid_cg", max_epochs=self.max_epochs, seed=self.seed))
         except Exception:
             self.counts["train_errors"] += 1
@@ -202,10 +202,10 @@ class TrainerNode:
         self.counts[f"trainings_{target}"] += 1
         self.last[target] = {"version": version, "samples": len(x), "epochs": fit.metrics["epochs"],
                              "wall_s": round(fit.metrics["wall_s"], 3),
-                             "train_rmse": [round(v, 4) for v in fit.metrics["train_rmse"]]}
-        self.log.info("published %s v%d: %d samples, %d epochs (%s) in %.2f s on %s, train rmse %s", name, version,
+                             "sigma": [round(v, 4) for v in fit.metrics["sigma"]]}
+        self.log.info("published %s v%d: %d samples, %d epochs (%s) in %.2f s on %s, 1-sigma %s", name, version,
                       len(x), fit.metrics["epochs"], fit.metrics["stop_reason"], fit.metrics["wall_s"],
-                      self.device or "cpu", self.last[target]["train_rmse"])
+                      self.device or "cpu", self.last[target]["sigma"])
         return msg
 
     # ------------------------------------------------------------------ status
@@ -218,7 +218,7 @@ class TrainerNode:
 
     def detail(self) -> str:
         last = dict(self.last)
-        s = "; ".join(f"{self.names[t]} v{m['version']} ({m['samples']} samples, rmse {m['train_rmse']})"
+        s = "; ".join(f"{self.names[t]} v{m['version']} ({m['samples']} samples, 1-sigma {m['sigma']})"
                       for t, m in sorted(last.items())) or "no set published yet"
         return f"{s}; device {self.device or 'cpu'}" + (f"; {self.busy}" if self.busy else "")
 

@@ -1,11 +1,14 @@
-"""GNSS measurement models of the error-state filter: predicted-minus-observed antenna position and
-velocity and their Jacobians H with respect to the 15-element error state (see eskf.py).
+"""Measurement models of the error-state filter: predicted-minus-observed antenna position and velocity (GNSS)
+and body-frame velocity (learned pseudo-measurement), with their Jacobians H with respect to the 15-element
+error state (see eskf.py).
 
 Antenna at lever arm l_b (FRD, from the IMU):
     r_ant = r + C_nb l_b,  v_ant = v_n + C_nb (omega_ib_b x l_b) - omega_in_n x (C_nb l_b).
 With C_nb_hat = (I - [phi x]) C_nb and omega_ib_b_hat = omega_ib_b - dbg (Groves 2013, section 14.3.1):
     H_pos = [I, 0, [C_nb l x], 0, 0]
     H_vel = [0, I, [C_nb (omega x l) x] - [omega_in_n x][C_nb l x], C_nb [l x], 0]
+Body velocity v_b = C_bn v_n: C_bn_hat v_hat = C_bn (I + [phi x]) (v_n + dv) ~ v_b + C_bn dv - C_bn [v_n x] phi,
+    H_body = [0, C_bn, -C_bn [v_n x], 0, 0]
 """
 from __future__ import annotations
 
@@ -54,3 +57,13 @@ def velocity_model(s: NavState, lever_b: np.ndarray, omega_ib_b: np.ndarray, fix
     H[:, ATT] = skew(C_nb @ (skew(omega_ib_b) @ lever_b)) - skew(omega_in_n) @ skew(C_nb @ lever_b)
     H[:, BG] = C_nb @ skew(lever_b)
     return z, H
+
+
+def body_velocity_model(s: NavState, v_b: np.ndarray):
+    """z = INS velocity in the body frame minus v_b [m/s, FRD] and H (3x15)."""
+    C_bn = s.C_nb.T
+    v_n = s.v_n
+    H = np.zeros((3, N_STATES))
+    H[:, VEL] = C_bn
+    H[:, ATT] = -C_bn @ skew(v_n)
+    return C_bn @ v_n - v_b, H

@@ -1,6 +1,6 @@
 """What the navigation engine gives to and takes from the learned INS-error models (DESIGN.md section 5).
 
-Three target variants, N and E components each:
+Four target variants; the first three have N and E components:
 - "position" (seed 000): the filter's position correction at each fused GNSS fix, as a rate over the
   interval since the previous fix [m/s];
 - "velocity" (seed 002, increments of INS minus filter over one interval): the velocity correction, as a
@@ -10,11 +10,21 @@ Three target variants, N and E components each:
   start, as the INS is during an outage; at fused fixes each yields (shadow position - filter position) [m].
   This is what a model must predict during an outage, and it grows well above the GNSS noise, unlike the
   one-interval corrections of the first two variants.
+- "body_velocity" (forward, right, down): the filter's velocity in the body frame, v_b = C_bn v_n [m/s], at a
+  fused fix once per `body_every_s`: a learned motion model of the vehicle (a car's lateral and vertical
+  velocity follow its yaw rate and mounting, a multirotor's horizontal velocity its rotor drag, which the
+  accelerometer feels), fused during an outage as a body-velocity pseudo-measurement: the INS error it observes
+  is the INS's C_bn v_n minus the prediction. The pattern of learned pseudo-measurements of TLIO (Liu et al.,
+  IEEE RA-L 2020) and AI-IMU dead reckoning (Brossard, Barrau, Bonnabel, IEEE T-IV 2020); the drag model of a
+  multirotor: Leishman, Macdonald, Beard, McLain, IEEE CSM 2014.
 Rate features (11): mean specific force f_b [m/s^2] and angular rate omega_ib_b [rad/s] over the interval,
 v_n [m/s], sin and cos of the yaw. Drift features (13): time since the start tau [s], mean f_b and omega_ib_b
 since the start, v_n of the free INS, sin and cos of the yaw at the start, yaw change since the start [rad].
+Body-velocity features (6): mean f_b and omega_ib_b over the `body_every_s` before the sample; not the INS's
+own velocity, which a model would learn to echo (it equals the target while GNSS is good).
 Samples are emitted only after the filter converged; queries only while no GNSS is fused, every 1.5 GNSS
-intervals (rate targets) and every second (drift), with the same features as the samples.
+intervals (rate targets), every second (drift) and every `body_every_s` once 1.5 GNSS intervals passed without
+a fix (body velocity), with the same features as the samples.
 """
 from __future__ import annotations
 
@@ -27,15 +37,18 @@ from .earth import radii
 from .rotation import wrap_angle
 from .strapdown import NavState, mechanize
 
-TARGETS = ("position", "velocity", "drift")
+TARGETS = ("position", "velocity", "drift", "body_velocity")
 RATE_FEATURES = ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "v_n", "v_e", "v_d", "sin_yaw", "cos_yaw")
 DRIFT_FEATURES = ("tau",) + RATE_FEATURES[:-2] + ("sin_yaw0", "cos_yaw0", "dyaw")
-FEATURES = {"position": RATE_FEATURES, "velocity": RATE_FEATURES, "drift": DRIFT_FEATURES}
+BODY_FEATURES = RATE_FEATURES[:6]
+FEATURES = {"position": RATE_FEATURES, "velocity": RATE_FEATURES, "drift": DRIFT_FEATURES,
+            "body_velocity": BODY_FEATURES}
+OUTPUTS = {"position": ("n", "e"), "velocity": ("n", "e"), "drift": ("n", "e"), "body_velocity": ("x", "y", "z")}
 
 
 @dataclass
 class LearnSample:
-    """One training pair of a target variant: features and the target value (2,) (N, E)."""
+    """One training pair of a target variant: features and the target value (OUTPUTS[target])."""
 
     t_ns: int
     target: str
@@ -107,13 +120,16 @@ class LearningTap:
     """The engine's side of the learning loop: windows, shadow INSs, samples and queries (see module docstring).
 
     horizon_s: longest drift horizon [s]; shadow_every_s: period of shadow starts [s]; sample_every_s: period
-    of drift samples per shadow [s]."""
+    of drift samples per shadow [s]; body_every_s: period of body-velocity samples and queries [s]."""
 
-    def __init__(self, horizon_s: float = 60.0, shadow_every_s: float = 10.0, sample_every_s: float = 1.0):
+    def __init__(self, horizon_s: float = 60.0, shadow_every_s: float = 10.0, sample_every_s: float = 1.0,
+                 body_every_s: float = 1.0):
         self.horizon_ns = int(horizon_s * 1e9)
         self.every_ns = int(shadow_every_s * 1e9)
         self.sample_ns = int(sample_every_s * 1e9)
+        self.body_every_s = body_every_s
         self.rate_window = FeatureWindow()
+        self.body_window = FeatureWindow()
         self.since_fix = FeatureWindow()  # the navigator's own free run since the last fused fix
         self.last_query_ns = 0
         self.shift_ne = np.zeros(2)  # position shift applied by learned drift corrections since the last fix [m]
@@ -124,6 +140,7 @@ class LearningTap:
     def on_step(self, dtheta_raw, dvel_raw, dtheta, dvel, dt: float) -> None:
         """One IMU interval: raw and bias-corrected increments [rad, m/s] over dt [s]."""
         self.rate_window.add(dtheta, dvel, dt)
+        self.body_window.add(dtheta, dvel, dt)
         self.since_fix.add(dtheta, dvel, dt)
         for sh in self.shadows:
             sh.advance(dtheta_raw, dvel_raw, dt)
@@ -136,6 +153,11 @@ class LearningTap:
             features = win.rate_features(s)
             self.samples.append(LearnSample(t_ns, "position", features, dx[0:2] / win.dt))
             self.samples.append(LearnSample(t_ns, "velocity", features, dx[3:5] / win.dt))
+        if self.body_window.dt >= self.body_every_s:
+            if converged:
+                self.samples.append(LearnSample(t_ns, "body_velocity", np.array(self.body_window.means()),
+                                                s.C_nb.T @ s.v_n))
+            self.body_window = FeatureWindow()
         if converged:
             for sh in self.shadows:
                 if t_ns - sh.last_sample_ns >= self.sample_ns:
@@ -151,7 +173,8 @@ class LearningTap:
         self.shift_ne = np.zeros(2)
 
     def maybe_query(self, t_ns: int, s: NavState, gnss_interval_s: float | None) -> None:
-        """While no fix is fused: a rate query every 1.5 GNSS intervals and a drift query every second."""
+        """While no fix is fused: a rate query every 1.5 GNSS intervals, a drift query every second and a
+        body-velocity query every body_every_s."""
         if gnss_interval_s and self.rate_window.dt >= 1.5 * gnss_interval_s:
             features = self.rate_window.rate_features(s)
             for target in ("position", "velocity"):
@@ -160,6 +183,10 @@ class LearningTap:
         if gnss_interval_s and t_ns - self.last_query_ns >= self.sample_ns and self.since_fix.dt > gnss_interval_s:
             self.last_query_ns = t_ns
             self.queries.append(LearnQuery(t_ns, "drift", self.since_fix.drift_features(s), self.since_fix.dt))
+        if gnss_interval_s and self.body_window.dt >= self.body_every_s and self.since_fix.dt >= 1.5 * gnss_interval_s:
+            self.queries.append(LearnQuery(t_ns, "body_velocity", np.array(self.body_window.means()),
+                                           self.body_window.dt))
+            self.body_window = FeatureWindow()
 
 
 def _ne_offset(a: NavState, b: NavState) -> np.ndarray:

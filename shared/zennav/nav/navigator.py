@@ -33,9 +33,9 @@ from scipy.stats import chi2
 
 from . import earth
 from .adaptive_r import AdaptiveR
-from .aiding import antenna_velocity, position_model, velocity_model
+from .aiding import antenna_velocity, body_velocity_model, position_model, velocity_model
 from .alignment import course_alignment, gyrocompass_refusal, level, levelling_std, static_alignment
-from .learning import TARGETS, LearningTap, LearnQuery, LearnSample
+from .learning import OUTPUTS, LearningTap, LearnQuery, LearnSample
 from .eskf import ATT, BA, BG, N_STATES, POS, VEL, ErrorStateKF, discretize, error_model, process_noise_psd
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_to_quat
 from .strapdown import NavState, mechanize
@@ -204,16 +204,21 @@ class Navigator:
         return queries
 
     def on_correction(self, query: LearnQuery, value, std) -> bool:
-        """Fuse a learned prediction for a query (nav/learning.py) as a pseudo-measurement of the INS error, N and E:
-        "position" / "velocity": error rates [m/s, m/s^2] accrued over the query's interval; "drift": the error of
-        the free-running INS since the last fix [m], fused into the position alone (a Schmidt update: velocity,
-        attitude and biases stay as they are, as in the shadow INSs the model learned from). std: 1-sigma alike."""
+        """Fuse a learned prediction for a query (nav/learning.py) as a pseudo-measurement, gated like GNSS:
+        "position" / "velocity": N and E error rates [m/s, m/s^2] accrued over the query's interval; "drift": N and
+        E error of the free-running INS since the last fix [m], fused into the position alone (a Schmidt update:
+        velocity, attitude and biases stay as they are, as in the shadow INSs the model learned from);
+        "body_velocity": the velocity in the body frame [m/s, FRD], now. std: the 1-sigma of value, alike."""
         value, std = np.asarray(value, dtype=float), np.asarray(std, dtype=float)
-        if self._tap is None or query.target not in TARGETS or value.shape != (2,) or std.shape != (2,) or not (
+        shape = (len(OUTPUTS[query.target]),) if query.target in OUTPUTS else None
+        if self._tap is None or shape is None or value.shape != shape or std.shape != shape or not (
                 np.all(np.isfinite(value)) and np.all(std > 0)):
             self._count_rejection("correction_malformed", query.t_ns, "")
             return False
         self._propagate_covariance()
+        if query.target == "body_velocity":
+            z, H = body_velocity_model(self.state, value)
+            return self._update("learned_body_velocity", query.t_ns, value, z, H, np.diag(np.square(std)))
         H = np.zeros((2, N_STATES))
         first = 3 if query.target == "velocity" else 0
         H[0, first], H[1, first + 1] = 1.0, 1.0
