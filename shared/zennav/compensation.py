@@ -9,9 +9,10 @@ while GNSS is lost with a predicted error rate and its 1-sigma (nav/learning.py)
   service; a first-order TS model extrapolates without bound outside it).
 - "elman" (seed 002): Elman network trained online on a sliding window of the newest samples; predicts
   only while its training error is under its threshold.
-The 1-sigma of a prediction, per output: ANFIS, the larger of the RMS error on the newest quarter of the
-samples of a fit on the rest and the RMS training residual (anfis_torch.fit_anfis_sigma); Elman, the RMS of its
-one-step-ahead residuals over the window (each computed before the network learned that sample).
+The 1-sigma of an answer, per output (zennav.learn.sigma: out-of-sample residuals, their RMS inflated for their
+correlation from answer to answer): ANFIS, the residuals on the newest quarter of the samples of a fit on the
+rest (anfis_torch.fit_anfis_sigma); Elman, its one-step-ahead residuals over the window (each computed before
+the network learned that sample).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from .learn import anfis_numpy
 from .learn.elman import Elman
+from .learn.sigma import answer_sigma
 from .nav.learning import FEATURES, OUTPUTS, TARGETS, LearnQuery, LearnSample
 
 MODELS = ("none", "anfis", "elman")
@@ -130,8 +132,8 @@ class ElmanCompensator:
         return {**self.net.norm(), "x_min": self._x_min, "x_max": self._x_max}
 
     def std(self) -> np.ndarray:
-        """1-sigma per output: RMS of the one-step prediction residuals over the window (physical units)."""
-        return np.maximum(np.sqrt(np.mean(np.square(self._residuals), axis=0)), 1e-6)
+        """1-sigma per output (physical units): answer_sigma of the one-step prediction residuals over the window."""
+        return answer_sigma(np.array(self._residuals))[0]
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:
         if query.target != self.target or not self.ready:

@@ -4,7 +4,7 @@
    loopback port with zennav.launch; ingest streams sim:car as fast as the pipeline drains without loss and
    ``zennav record`` writes the vehicle's whole key space to MCAP; the demo process subscribes to the
    navigation solution itself. Meanwhile a thread runs the same drive in process: the plain replay and the
-   replay with in-process learned compensation (Elman, drift target).
+   replay with in-process learned compensation (ANFIS, body-velocity target).
 2. Checks that no sample was lost or duplicated (ins counters, solution sequence, the recording's count)
    and that the distributed solution equals the in-process replay, scores both with zennav.metrics, writes
    nav.txt, nav.csv, metrics.json and PNG plots, and prints the tables and the paths.
@@ -32,7 +32,7 @@ from .nav.types import NS
 from .replay import ReplayResult, run_replay
 
 DEMO_LAUNCH = Path(__file__).resolve().parents[2] / "deploy" / "demo.yaml"
-LEARNED = ("elman", "drift")  # in-process learned compensation until the trainer/predictor services land
+LEARNED = ("anfis", "body_velocity")  # the in-process learned compensation the demo scores
 
 
 @dataclass

@@ -44,7 +44,7 @@ def test_demo_short_drive(tmp_path):
     assert len(pids) == 8, p.stdout
     assert not _running(pids)
     for name in ("demo.mcap", "nav.txt", "nav.csv", "metrics.json", "horizontal_error.png", "track.png",
-                 "launch.log", "learned-elman-inprocess/nav.txt", "learned-elman-inprocess/metrics.json"):
+                 "launch.log", "learned-anfis-inprocess/nav.txt", "learned-anfis-inprocess/metrics.json"):
         assert (out / name).stat().st_size > 0, name
     assert "identical, bit for bit" in p.stdout
     assert "IN-PROCESS" in p.stdout and "outage 60s+30s" in p.stdout

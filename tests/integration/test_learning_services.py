@@ -372,10 +372,10 @@ def test_ins_learning_loop_fuses_predictions_during_outage(cluster):
     svc = Collector(cluster.bus, k.svc_status(), channel="ring", capacity=64)
     cluster.service("predictor")
     # one training, at 300 samples (of the ~330 of stream 1); stream 2 adds ~200 before its outage: no other
-    cluster.service("trainer", "--min-samples", "300", "--retrain-samples", "300", "--retrain-every", "0",
-                    "--n-rules", "4", "--torch-threads", "1")
+    cluster.service("trainer", "--targets", "drift", "--min-samples", "300", "--retrain-samples", "300",
+                    "--retrain-every", "0", "--n-rules", "4", "--torch-threads", "1")
     # streamed as fast as the ins goes (tens of times real time): allow answers 3 s of data time old
-    cluster.service("ins", "--learning", "--correction-max-age", "3")
+    cluster.service("ins", "--learning", "--learn-targets", "drift", "--correction-max-age", "3")
 
     def done(n):
         def nth(c):

@@ -20,6 +20,7 @@ from zennav.learn.anfis_torch import (  # noqa: E402
 )
 from zennav.learn.lse import ridge_lstsq  # noqa: E402
 from zennav.learn.pso import PSOConfig  # noqa: E402
+from zennav.learn.sigma import answer_sigma  # noqa: E402
 
 
 def _sinc2d(n=11):
@@ -195,18 +196,32 @@ def test_fit_to_paramset_to_numpy_prediction():
 
 
 def test_sigma_is_the_held_out_error_when_the_fit_interpolates():
-    """fit_anfis_sigma: the 1-sigma is the newest quarter's RMS error of a fit on the rest (or the training
-    RMSE, whichever is larger); with many rules on few noisy samples the training RMSE understates it."""
+    """fit_anfis_sigma: the 1-sigma comes from the newest quarter's residuals of a fit on the rest (answer_sigma),
+    at least the training RMSE; with many rules on few noisy samples the training RMSE understates it."""
     rng = np.random.default_rng(8)
     x = rng.uniform(-2.0, 2.0, size=(120, 3))
     y = np.stack([np.sin(x[:, 0]) + x[:, 1], np.full(120, 0.5), x[:, 2] ** 2], axis=1) + rng.normal(0, 0.3, (120, 3))
     cfg = TrainConfig(max_epochs=5)
     fit = fit_anfis_sigma(x, y, n_rules=12, config=cfg, device="cpu")
     first = fit_anfis(x[:90], y[:90], n_rules=12, config=cfg, device="cpu")
-    held = np.sqrt(np.mean((an.predict(first.arrays, first.norm, x[90:]) - y[90:]) ** 2, axis=0))
-    np.testing.assert_allclose(fit.metrics["holdout_rmse"], held, rtol=1e-9)
-    np.testing.assert_allclose(fit.metrics["sigma"], np.maximum(held, fit.metrics["train_rmse"]), rtol=1e-15)
-    assert np.all(np.array(fit.metrics["sigma"]) > 0.25)  # at least about the noise (0.3) on every output
+    sigma, rho = answer_sigma(an.predict(first.arrays, first.norm, x[90:]) - y[90:])
+    np.testing.assert_allclose(fit.metrics["holdout_rho"], rho, rtol=1e-12)
+    np.testing.assert_allclose(fit.metrics["sigma"], np.maximum(sigma, fit.metrics["train_rmse"]), rtol=1e-12)
+    assert np.all(np.array(fit.metrics["holdout_rmse"]) > 0.25)  # at least about the noise (0.3) on every output
     assert np.mean(fit.metrics["sigma"]) > 1.2 * np.mean(fit.metrics["train_rmse"])
     with pytest.raises(ValueError):
         fit_anfis_sigma(x[:1], y[:1], n_rules=1, config=cfg)
+
+
+def test_answer_sigma_inflates_correlated_residuals_by_the_ar1_factor():
+    rng = np.random.default_rng(9)
+    white = rng.normal(0.0, 1.0, (20000, 1))
+    ar = np.zeros_like(white)
+    for k in range(1, len(ar)):
+        ar[k] = 0.8 * ar[k - 1] + white[k]
+    sigma, rho = answer_sigma(np.hstack([white, ar]))
+    assert rho[0] == pytest.approx(0.0, abs=0.02) and rho[1] == pytest.approx(0.8, abs=0.02)
+    assert sigma[0] == pytest.approx(1.0, abs=0.03)  # independent errors: the RMS
+    assert sigma[1] == pytest.approx(np.sqrt(np.mean(ar**2)) * 3.0, rel=0.05)  # sqrt(1.8 / 0.2) = 3
+    sigma, rho = answer_sigma(np.array([[1.0], [-1.0], [1.0], [-1.0]]))  # anti-correlated: no deflation
+    assert rho[0] == 0.0 and sigma[0] == pytest.approx(1.0)

@@ -361,9 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--learning", action="store_true",
                    help="learning loop: publish learn/samples and learn/query, fuse learn/correction (off: the "
                         "core runs exactly as the in-process replay)")
-    p.add_argument("--learn-targets", default="drift",
+    p.add_argument("--learn-targets", default="body_velocity",
                    help="comma-separated target variants to publish samples and queries for (position, velocity, "
-                        "drift)")
+                        "drift, body_velocity; zennav.nav.learning)")
     p.add_argument("--correction-max-age", type=float, default=1.0,
                    help="fuse an answer only if its query is at most this old [s of data time]")
     p.add_argument("--attitude-alignment", action="store_true",

@@ -57,7 +57,7 @@ class TrainerNode:
     """The transport-free part of the trainer: ``on_sample(msg)`` from the bus thread, ``train_due()`` /
     ``train(target)`` from the training thread; ``publish(name, msg)`` sends a model_params message."""
 
-    def __init__(self, publish, log, targets=("drift",), *, model: str = "anfis", prefix: str | None = None,
+    def __init__(self, publish, log, targets=("body_velocity",), *, model: str = "anfis", prefix: str | None = None,
                  window: int = 5000, min_samples: int = 200, retrain_samples: int = 500,
                  retrain_every_s: float = 60.0, n_rules: int = 8, max_epochs: int = 30, seed: int = 0, device=None,
                  first_version: int = 1):
@@ -228,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 "LSE + Fletcher-Reeves CG) or online Elman on the ins's samples, versioned parameter sets")
     p.add_argument("--model", default="anfis", choices=MODELS, help="anfis: retrained on the newest samples; "
                    "elman: learns online from every sample (seed 002)")
-    p.add_argument("--targets", default="drift", help=f"comma-separated target variants to learn ({', '.join(TARGETS)})")
+    p.add_argument("--targets", default="body_velocity", help=f"comma-separated target variants to learn ({', '.join(TARGETS)})")
     p.add_argument("--prefix", default=None, help="model name prefix (default: --model): sets are published as "
                    "<prefix>-<target>")
     p.add_argument("--window", type=int, default=5000, help="newest samples kept per target")

@@ -32,6 +32,7 @@ from . import anfis_numpy
 from .fr_cg import fr_cg
 from .lse import ridge_lstsq
 from .pso import PSOConfig, Swarm
+from .sigma import answer_sigma
 
 METHODS = ("hybrid_cg", "hybrid_gd", "adam", "pso")
 
@@ -343,24 +344,24 @@ def fit_anfis(x, y, *, n_rules: int | None = None, n_mf: int | None = None, conf
     return FitResult(arrays, norm, result, metrics)
 
 
-SIGMA_FLOOR = 1e-6  # a 1-sigma of exactly 0 (a target fitted exactly) is never the truth [output units]
-
-
 def fit_anfis_sigma(x, y, *, n_rules: int, config: TrainConfig = TrainConfig(), holdout: float = 0.25,
                     device=None) -> FitResult:
-    """fit_anfis on all of x, y (rows in time order, newest last) plus an honest 1-sigma of its predictions:
-    a first fit on the oldest (1 - holdout) predicts the newest holdout, and metrics["sigma"] (per output,
-    physical units) is the larger of that held-out RMSE, the final fit's training RMSE and SIGMA_FLOOR; metrics
-    ["holdout_rmse"] keeps the first. A model that interpolates its training set does not look certain."""
+    """fit_anfis on all of x, y (rows in time order, newest last) plus the 1-sigma of its answers: a first fit
+    on the oldest (1 - holdout) predicts the newest holdout, and metrics["sigma"] (per output, physical units)
+    is zennav.learn.sigma.answer_sigma of those held-out residuals (their RMS inflated for their correlation),
+    at least the final fit's training RMSE; metrics["holdout_rmse"] and ["holdout_rho"] keep the parts. A
+    model that interpolates its training set does not look certain."""
     x, y = _as_xy(x, y)
     n = int(round(len(x) * (1.0 - holdout)))
     if not 0 < n < len(x):
         raise ValueError(f"holdout {holdout} leaves no training or no held-out row of {len(x)}")
-    first = fit_anfis(x[:n], y[:n], n_rules=n_rules, config=config, x_val=x[n:], y_val=y[n:], device=device)
+    first = fit_anfis(x[:n], y[:n], n_rules=n_rules, config=config, device=device)
+    residuals = anfis_numpy.predict(first.arrays, first.norm, x[n:]) - y[n:]
+    sigma, rho = answer_sigma(residuals)
     fit = fit_anfis(x, y, n_rules=n_rules, config=config, device=device)
-    fit.metrics["holdout_rmse"] = first.metrics["val_rmse"]
-    sigma = np.maximum(np.maximum(first.metrics["val_rmse"], fit.metrics["train_rmse"]), SIGMA_FLOOR)
-    fit.metrics["sigma"] = sigma.tolist()
+    fit.metrics["holdout_rmse"] = np.sqrt(np.mean(residuals**2, axis=0)).tolist()
+    fit.metrics["holdout_rho"] = rho.tolist()
+    fit.metrics["sigma"] = np.maximum(sigma, fit.metrics["train_rmse"]).tolist()
     return fit
 
 
