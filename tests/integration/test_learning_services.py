@@ -290,7 +290,7 @@ def test_remote_trainer_from_other_netns_survives_link_cut(cluster, netns, tmp_p
                                "--zenoh-config", client_conf, "--connect", f"tcp/{edge_ip}:{p_lan}",
                                "--vehicle", cluster.vehicle, "--status-period", "0.2", "--min-samples", "200",
                                "--retrain-samples", "200", "--retrain-every", "0", "--max-epochs", "5",
-                               "--n-rules", "4", "--link-poll", "0.2"], tmp_path / "trainer.log", env)
+                               "--n-rules", "4", "--link-poll", "0.2", "--targets", "drift"], tmp_path / "trainer.log", env)
     cluster.procs.append(trainer)
     inside.append(trainer)
     cluster.wait_alive(["predictor", "trainer"], 60, trainer)
