@@ -57,7 +57,7 @@ class AnfisCompensator:
         from .learn.anfis_torch import TrainConfig, fit_anfis_sigma  # torch only when training in-process
 
         x, y = np.array(self._x), np.array(self._y)
-        fit = fit_anfis_sigma(x, y, n_rules=self.n_rules, config=TrainConfig(max_epochs=self.max_epochs, seed=self.seed))
+        fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=TrainConfig(max_epochs=self.max_epochs, seed=self.seed))
         self.model = (fit.arrays, fit.norm)
         self.sigma = np.asarray(fit.metrics["sigma"], dtype=float)
         self.trainings.append({"samples": len(x), **{k: fit.metrics[k] for k in ("epochs", "wall_s", "train_rmse",

@@ -95,12 +95,12 @@ def test_samples_only_after_convergence_and_queries_only_without_gnss(drive):
     assert drift_q[0].features.shape == (len(DRIFT_FEATURES),)
     taus = [q.features[0] for q in drift_q]  # time since the last fix grows through the outage
     assert taus == sorted(taus) and taus[-1] > 19.0
-    # Body velocity: one sample per second of GNSS and one query per second of outage; a car moves forward
-    # (sideslip and vertical speed are small against its speed).
+    # Body velocity: one sample per fused fix (features over the last second) and one query per second of
+    # outage; a car moves forward (sideslip and vertical speed are small against its speed).
     body = [s for s in samples if s.target == "body_velocity"]
     body_q = [q for q in queries if q.target == "body_velocity"]
     assert body[0].features.shape == (len(BODY_FEATURES),) and body[0].value.shape == (3,)
-    assert np.diff([s.t_ns for s in body]).min() >= 1e9 - 1 and np.median(np.diff([s.t_ns for s in body])) < 1.1e9
+    assert np.median(np.diff([s.t_ns for s in body])) == 5e8  # 2 Hz GNSS
     assert 18 <= len(body_q) <= 21 and all(1.0 <= q.dt_s < 2.0 for q in body_q)
     assert np.median([q.dt_s for q in body_q]) == pytest.approx(1.0, abs=0.02)
     v_b = np.array([s.value for s in body])
@@ -110,3 +110,32 @@ def test_samples_only_after_convergence_and_queries_only_without_gnss(drive):
     old = [np.hypot(*s.value) for s in drift if s.features[0] > 40.0]
     young = [np.hypot(*s.value) for s in drift if s.features[0] < 5.0]
     assert np.median(old) > 5 * np.median(young)
+
+
+def test_body_velocity_window_slides_by_gnss_intervals_and_restarts_after_an_outage():
+    """Samples: mean increments over the whole GNSS intervals covering the last second; a rate query in between
+    (an outage) restarts the window, so no sample mixes data from both sides of a gap."""
+    from zennav.nav.learning import LearningTap
+    from zennav.nav.rotation import euler_to_quat
+    from zennav.nav.strapdown import NavState
+
+    s = NavState.from_arrays([0.7, 0.2, 10.0], [3.0, 4.0, 0.0], euler_to_quat([0.0, 0.0, 0.0]))
+    tap = LearningTap(body_every_s=1.0)
+    dt, t = 0.01, 0
+    for k in range(200):  # 2 s at 100 Hz, a fix every 0.25 s; the specific force x ramps with k
+        dv = (0.001 * k * dt, 0.0, -9.8 * dt)
+        tap.on_step((0.0,) * 3, dv, (0.0,) * 3, dv, dt)
+        t += 10_000_000
+        if (k + 1) % 25 == 0:
+            tap.on_fix(t, s, np.zeros(15), True, [0.0] * 3, [0.0] * 3, (0.0,) * 3, (0.0,) * 3)
+    body = [x for x in tap.samples if x.target == "body_velocity"]
+    assert [x.t_ns for x in body] == [1_000_000_000 + 250_000_000 * i for i in range(5)]
+    assert body[-1].features[0] == pytest.approx(0.001 * np.mean(np.arange(100, 200)))  # the last second
+    assert body[-1].value == pytest.approx([3.0, 4.0, 0.0])  # level, heading north: v_b = v_n
+    tap.samples.clear()
+    for k in range(150):  # 1.5 s without a fix: a rate query splits the window
+        tap.on_step((0.0,) * 3, (0.0, 0.0, -9.8 * dt), (0.0,) * 3, (0.0, 0.0, -9.8 * dt), dt)
+        t += 10_000_000
+        tap.maybe_query(t, s, 0.25)
+    tap.on_fix(t, s, np.zeros(15), True, [0.0] * 3, [0.0] * 3, (0.0,) * 3, (0.0,) * 3)
+    assert not [x for x in tap.samples if x.target == "body_velocity"]  # less than 1 s since the window restarted

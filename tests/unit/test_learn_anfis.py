@@ -202,15 +202,16 @@ def test_sigma_is_the_held_out_error_when_the_fit_interpolates():
     x = rng.uniform(-2.0, 2.0, size=(120, 3))
     y = np.stack([np.sin(x[:, 0]) + x[:, 1], np.full(120, 0.5), x[:, 2] ** 2], axis=1) + rng.normal(0, 0.3, (120, 3))
     cfg = TrainConfig(max_epochs=5)
-    fit = fit_anfis_sigma(x, y, n_rules=12, config=cfg, device="cpu")
-    first = fit_anfis(x[:90], y[:90], n_rules=12, config=cfg, device="cpu")
+    fit = fit_anfis_sigma(x, y, max_rules=12, config=cfg, device="cpu")
+    assert len(fit.arrays["rules"]) == 7  # 120 samples, 3 inputs: 120 // 16
+    first = fit_anfis(x[:90], y[:90], n_rules=7, config=cfg, device="cpu")
     sigma, rho = answer_sigma(an.predict(first.arrays, first.norm, x[90:]) - y[90:])
     np.testing.assert_allclose(fit.metrics["holdout_rho"], rho, rtol=1e-12)
     np.testing.assert_allclose(fit.metrics["sigma"], np.maximum(sigma, fit.metrics["train_rmse"]), rtol=1e-12)
     assert np.all(np.array(fit.metrics["holdout_rmse"]) > 0.25)  # at least about the noise (0.3) on every output
     assert np.mean(fit.metrics["sigma"]) > 1.2 * np.mean(fit.metrics["train_rmse"])
     with pytest.raises(ValueError):
-        fit_anfis_sigma(x[:1], y[:1], n_rules=1, config=cfg)
+        fit_anfis_sigma(x[:1], y[:1], max_rules=1, config=cfg)
 
 
 def test_answer_sigma_inflates_correlated_residuals_by_the_ar1_factor():

@@ -14,8 +14,7 @@ Wiring table
                                            joiners by the publisher's queryable)
                <base>/svc/trainer/status   samples per target, trainings, versions, link losses, device
 
-ANFIS rule count: --n-rules, reduced while samples are few to at most one consequent parameter per 4 samples per
-output (n_rules * (n_in + 1) <= N / 4), so that the fit does not interpolate its samples.
+ANFIS rule count: --n-rules, reduced while samples are few (anfis_torch.fit_anfis_sigma).
 
 Schedule: per target, the newest --window samples are kept; a training starts when at least --min-samples are
 held and either --retrain-samples new ones arrived or --retrain-every seconds passed since the last training
@@ -181,11 +180,8 @@ class TrainerNode:
         x = np.array([r[1] for r in rows], dtype=float)
         y = np.array([r[2] for r in rows], dtype=float)
         self.busy = f"training {target} on {len(rows)} samples"
-        # at most one consequent parameter per 4 samples (per output): fewer rules while samples are few, so
-        # that the training RMSE (the predictor's 1-sigma) is not that of an interpolating fit
-        n_rules = max(1, min(self.n_rules, len(x) // (4 * (x.shape[1] + 1))))
         try:
-            fit = fit_anfis_sigma(x, y, n_rules=n_rules, device=self.device,
+            fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, device=self.device,
                             config=TrainConfig(method="hybrid_cg", max_epochs=self.max_epochs, seed=self.seed))
         except Exception:
             self.counts["train_errors"] += 1

@@ -10,8 +10,8 @@ Four target variants; the first three have N and E components:
   start, as the INS is during an outage; at fused fixes each yields (shadow position - filter position) [m].
   This is what a model must predict during an outage, and it grows well above the GNSS noise, unlike the
   one-interval corrections of the first two variants.
-- "body_velocity" (forward, right, down): the filter's velocity in the body frame, v_b = C_bn v_n [m/s], at a
-  fused fix once per `body_every_s`: a learned motion model of the vehicle (a car's lateral and vertical
+- "body_velocity" (forward, right, down): the filter's velocity in the body frame, v_b = C_bn v_n [m/s], at each
+  fused fix: a learned motion model of the vehicle (a car's lateral and vertical
   velocity follow its yaw rate and mounting, a multirotor's horizontal velocity its rotor drag, which the
   accelerometer feels), fused during an outage as a body-velocity pseudo-measurement: the INS error it observes
   is the INS's C_bn v_n minus the prediction. The pattern of learned pseudo-measurements of TLIO (Liu et al.,
@@ -20,8 +20,9 @@ Four target variants; the first three have N and E components:
 Rate features (11): mean specific force f_b [m/s^2] and angular rate omega_ib_b [rad/s] over the interval,
 v_n [m/s], sin and cos of the yaw. Drift features (13): time since the start tau [s], mean f_b and omega_ib_b
 since the start, v_n of the free INS, sin and cos of the yaw at the start, yaw change since the start [rad].
-Body-velocity features (6): mean f_b and omega_ib_b over the `body_every_s` before the sample; not the INS's
-own velocity, which a model would learn to echo (it equals the target while GNSS is good).
+Body-velocity features (6): mean f_b and omega_ib_b over the last `body_every_s` (a sample: the whole GNSS intervals
+that cover it; a query: exactly that long); not the INS's own velocity, which a model would learn to echo (it
+equals the target while GNSS is good).
 Samples are emitted only after the filter converged; queries only while no GNSS is fused, every 1.5 GNSS
 intervals (rate targets), every second (drift) and every `body_every_s` once 1.5 GNSS intervals passed without
 a fix (body velocity), with the same features as the samples.
@@ -29,6 +30,7 @@ a fix (body velocity), with the same features as the samples.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,7 +131,8 @@ class LearningTap:
         self.sample_ns = int(sample_every_s * 1e9)
         self.body_every_s = body_every_s
         self.rate_window = FeatureWindow()
-        self.body_window = FeatureWindow()
+        self.body_window = FeatureWindow()  # since the last fix or body-velocity query
+        self.body_chunks: deque[FeatureWindow] = deque()  # the last GNSS intervals' windows, back to back
         self.since_fix = FeatureWindow()  # the navigator's own free run since the last fused fix
         self.last_query_ns = 0
         self.shift_ne = np.zeros(2)  # position shift applied by learned drift corrections since the last fix [m]
@@ -153,11 +156,7 @@ class LearningTap:
             features = win.rate_features(s)
             self.samples.append(LearnSample(t_ns, "position", features, dx[0:2] / win.dt))
             self.samples.append(LearnSample(t_ns, "velocity", features, dx[3:5] / win.dt))
-        if self.body_window.dt >= self.body_every_s:
-            if converged:
-                self.samples.append(LearnSample(t_ns, "body_velocity", np.array(self.body_window.means()),
-                                                s.C_nb.T @ s.v_n))
-            self.body_window = FeatureWindow()
+        self._body_sample(t_ns, s, converged)
         if converged:
             for sh in self.shadows:
                 if t_ns - sh.last_sample_ns >= self.sample_ns:
@@ -168,9 +167,25 @@ class LearningTap:
         if converged and (not self.shadows or t_ns - self.shadows[-1].t0_ns >= self.every_ns):
             self.shadows.append(Shadow(t_ns, s, gyro_bias, accel_bias, prev_dtheta, prev_dvel))
         self.rate_window = FeatureWindow()
+        self.body_window = FeatureWindow()
         self.since_fix = FeatureWindow(s.euler[2])
         self.last_query_ns = t_ns
         self.shift_ne = np.zeros(2)
+
+    def _body_sample(self, t_ns: int, s: NavState, converged: bool) -> None:
+        """At a fused fix: slide the body-velocity window by this GNSS interval and sample it once it spans
+        body_every_s. An interval that a rate query split (an outage) restarts the window."""
+        chunks, win = self.body_chunks, self.rate_window
+        if abs(win.dt - self.since_fix.dt) > 1e-9:
+            chunks.clear()
+        chunks.append(win)
+        while len(chunks) > 1 and sum(c.dt for c in chunks) - chunks[0].dt >= self.body_every_s:
+            chunks.popleft()
+        dt = sum(c.dt for c in chunks)
+        if converged and dt >= self.body_every_s:
+            means = np.array([sum(c.dvel[i] for c in chunks) for i in range(3)]
+                             + [sum(c.dtheta[i] for c in chunks) for i in range(3)]) / dt
+            self.samples.append(LearnSample(t_ns, "body_velocity", means, s.C_nb.T @ s.v_n))
 
     def maybe_query(self, t_ns: int, s: NavState, gnss_interval_s: float | None) -> None:
         """While no fix is fused: a rate query every 1.5 GNSS intervals, a drift query every second and a
