@@ -52,7 +52,10 @@ def test_attitude_service_equals_core_batch_with_ins_rate_and_monitor_shows_it(c
     assert np.array_equal(np.array([m["gyro_bias"] for m in out]), ref.bias_b)
     assert np.array_equal(np.array([m["weight"] for m in out]), ref.weight)
     applied = np.linalg.norm(w_in, axis=1) > 0
-    assert applied.mean() > 0.9, applied.mean()  # from the ins' solutions (zeros only before the first one)
+    # from the ins' solutions: zeros only before the first one reached the attitude service (when depends on how
+    # far the ins lags the attitude service at the start of the stream), applied to every sample after it
+    first = int(np.argmax(applied))
+    assert applied[first:].all() and applied.mean() > 0.5, (first, applied.mean())
     assert np.allclose(np.linalg.norm(w_in[applied], axis=1), 7.29e-5, rtol=0.05)  # earth rate + small transport
     recv = [r for _, _, r in att.items]
     print(f"\nattitude: {n} samples equal the core batch bit for bit; omega_in_n applied to {applied.sum()}; "
