@@ -11,8 +11,8 @@ with, for each, the wall time and epochs to reach the target training RMSE, whet
 final training and validation RMSE (normalised, and per output in physical units). Medians over --seeds seeds.
 
 Data. `zennav.compensation.training_set(load_dataset("rtklibexplorer"), --target)`: the learning samples the
-navigation engine emits over the whole drive with full GNSS (the target variant's features; 2 targets, N and
-E; any variant in zennav.nav.learning.TARGETS). Split in time
+navigation engine emits over the whole drive with full GNSS (the target variant's features and outputs: N and
+E, or x, y, z for body_velocity; any variant in zennav.nav.learning.TARGETS). Split in time
 order: the first 70 % of the samples train, the last 30 % validate (no shuffling: validation is the future
 part of the drive, as in an outage). Inputs and targets are normalised with the training part's mean and
 standard deviation only; all methods see the same normalised arrays.
@@ -75,7 +75,7 @@ from zennav.compensation import training_set
 from zennav.datasets.registry import load_dataset
 from zennav.learn import anfis_numpy, anfis_torch
 from zennav.learn.anfis_torch import TorchAnfis, TrainConfig
-from zennav.nav.learning import TARGETS
+from zennav.nav.learning import OUTPUTS, TARGETS
 
 ZENNAV_METHODS = ("hybrid_cg", "hybrid_gd", "adam", "pso")
 ALL_METHODS = ZENNAV_METHODS + ("toolbox",)
@@ -86,7 +86,7 @@ LABELS = {
     "pso": "PSO premises + LSE (zennav)",
     "toolbox": "anfis-toolbox hybrid",
 }
-UNITS = {"position": "m/s", "velocity": "m/s^2", "drift": "m"}  # nav/learning.py
+UNITS = {"position": "m/s", "velocity": "m/s^2", "drift": "m", "body_velocity": "m/s"}  # nav/learning.py
 TRAIN_FRACTION = 0.7
 
 
@@ -270,7 +270,11 @@ def main() -> None:
     xn = (x - norm["x_mean"]) / norm["x_std"]
     yn = (y - norm["y_mean"]) / norm["y_std"]
     x_tr, y_tr, x_va, y_va = xn[:n_tr], yn[:n_tr], xn[n_tr:], yn[n_tr:]
-    unit = UNITS.get(args.target, "phys. units")
+    unit = UNITS[args.target]
+    names = "/".join(OUTPUTS[args.target]).upper()
+
+    def per_output(v) -> str:
+        return " / ".join(f"{a:.4g}" for a in v)
     y_std = norm["y_std"]
     span = (t_ns[-1] - t_ns[0]) / 1e9
     t_split = (t_ns[n_tr] - t_ns[0]) / 1e9
@@ -294,11 +298,11 @@ def main() -> None:
             targets[seed] = args.target_factor * best
 
     # --- report ---
-    print(f"ANFIS trainers on the rtklibexplorer drive, target '{args.target}' (N, E in {unit}); "
+    print(f"ANFIS trainers on the rtklibexplorer drive, target '{args.target}' ({names} in {unit}); "
           f"{len(x)} samples over {span:.0f} s")
     print(f"split in time order: first {TRAIN_FRACTION:.0%} train ({n_tr} samples, 0-{t_split:.0f} s), "
           f"last {1 - TRAIN_FRACTION:.0%} validation ({len(x) - n_tr} samples); normalised with the training "
-          f"mean/std (y std N, E = {y_std[0]:.4g}, {y_std[1]:.4g} {unit})")
+          f"mean/std (y std {names} = {per_output(y_std)} {unit})")
     print(f"{args.rules} rules (k-means, bell MFs) x {x.shape[1]} inputs; seeds {list(range(args.seeds))}; "
           f"per fit: <= {args.max_epochs} epochs and <= {args.budget_s:g} s ({args.clock} clock) of training; 1 thread; "
           f"anfis-toolbox lr {args.toolbox_lr:g}; zennav TrainConfig "
@@ -313,7 +317,7 @@ def main() -> None:
     hdr = (f"{'method':<28}{'reached':>8}{'time to':>9}{'epochs to':>10}{'epochs':>8}{'train':>8}"
            f"{'final':>8}{'final':>8}{'final val RMSE':>22}")
     hdr2 = (f"{'':<28}{'target':>8}{'target s':>9}{'target':>10}{'run':>8}{'time s':>8}"
-            f"{'train':>8}{'val':>8}{'N / E ' + unit:>22}")
+            f"{'train':>8}{'val':>8}{names + ' ' + unit:>22}")
     print(hdr)
     print(hdr2)
     print("-" * len(hdr))
@@ -328,20 +332,20 @@ def main() -> None:
         print(f"{LABELS[m]:<28}{f'{n_hit}/{len(rs)}':>8}{_fmt(t_med, '.2f'):>9}{_fmt(e_med, '.0f'):>10}"
               f"{_med([r.epochs[-1] for r in rs]):>8.0f}{_med([r.clock_s[-1] for r in rs]):>8.2f}"
               f"{_med([r.rmse[-1] for r in rs]):>8.4f}{_med([r.val_rmse[-1] for r in rs]):>8.3f}"
-              f"{f'{phys[0]:.4g} / {phys[1]:.4g}':>22}")
+              f"{per_output(phys):>22}")
         ranking.append((t_med, m))
         for r, (c, e) in zip(rs, hits):
             if args.per_seed:
                 print(f"{'  seed ' + str(r.seed):<28}{'yes' if math.isfinite(c) else 'no':>8}{_fmt(c, '.2f'):>9}"
                       f"{_fmt(e, '.0f'):>10}{r.epochs[-1]:>8}{r.clock_s[-1]:>8.2f}{r.rmse[-1]:>8.4f}"
-                      f"{r.val_rmse[-1]:>8.3f}{f'{r.val_rmse_out[-1][0] * y_std[0]:.4g} / {r.val_rmse_out[-1][1] * y_std[1]:.4g}':>22}")
+                      f"{r.val_rmse[-1]:>8.3f}{per_output(r.val_rmse_out[-1] * y_std):>22}")
             if r.error:
                 print(f"{'':<4}seed {r.seed}: stopped at epoch {r.epochs[-1]}: {r.error}")
     # reference: the training mean as the prediction (zero in normalised units)
     base_out = np.sqrt(np.mean(y_va**2, axis=0))
     print(f"{'(predict the training mean)':<28}{'':>8}{'':>9}{'':>10}{'':>8}{'':>8}"
           f"{float(np.sqrt(np.mean(y_tr**2))):>8.4f}{float(np.sqrt(np.mean(y_va**2))):>8.3f}"
-          f"{f'{base_out[0] * y_std[0]:.4g} / {base_out[1] * y_std[1]:.4g}':>22}")
+          f"{per_output(base_out * y_std):>22}")
 
     ranking.sort()
     reached = [(t, m) for t, m in ranking if math.isfinite(t)]

@@ -7,7 +7,7 @@ that RMS against pure INS.
 rtklibexplorer (one 500 s drive, --dataset rtklibexplorer): GNSS is withheld in windows of 10, 30 and 60 s, the
 first after an initial training period (--train-s) and then one every window length plus --gap-s of GNSS in
 between; the model learns online from the drive itself (samples while GNSS is good, prediction in the windows).
-`zennav replay rtklibexplorer --outage-every 90:30:120 --compensation elman --target drift` is one row.
+`zennav replay rtklibexplorer --outage-every 90:30:120 --compensation elman --target body_velocity` is one row.
 
 ansfl (61 quadrotor flights of 11-55 s, --dataset ansfl): one flight is too short to train on, so the model learns
 across flights: the flights are split in two folds (odd and even path numbers of each group); a model trained on
@@ -16,7 +16,7 @@ outage windows of the other fold's flights; each flight long enough gets one win
 max(--first-s, min(half the flight, its end minus the window)). 30 s windows fit only 9 flights (>= 40 s); 60 s
 none.
 
-    .venv/bin/python benchmarks/outage_learning.py [--dataset rtklibexplorer|ansfl] [--target drift]
+    .venv/bin/python benchmarks/outage_learning.py [--dataset rtklibexplorer|ansfl] [--target body_velocity]
         [--windows 10,30,60]
 """
 from __future__ import annotations
@@ -123,7 +123,7 @@ def quadrotor(args) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dataset", default="rtklibexplorer", choices=("rtklibexplorer", "ansfl"))
-    ap.add_argument("--target", default="drift", choices=TARGETS)
+    ap.add_argument("--target", default="body_velocity", choices=TARGETS)
     ap.add_argument("--windows", default=None, help="window lengths [s] (default 10,30,60; ansfl 10,30)")
     ap.add_argument("--train-s", type=float, default=120.0, help="rtklibexplorer: GNSS before the first window [s]")
     ap.add_argument("--gap-s", type=float, default=60.0, help="rtklibexplorer: GNSS between windows [s]")

@@ -1,7 +1,7 @@
 """Learned INS-error compensation in one process: the learning loop of DESIGN.md section 5 without transport.
 
 A compensator takes the navigation engine's LearnSamples while GNSS is good and answers its LearnQueries
-while GNSS is lost with a predicted error rate and its 1-sigma (nav/learning.py). Two models:
+while GNSS is lost with a prediction of the query's target variant and its 1-sigma (nav/learning.py). Two models:
 - "anfis" (seed 000): first-order Takagi-Sugeno ANFIS, k-means rule base, trained by the hybrid
   least-squares + Fletcher-Reeves CG learner on the newest samples when a prediction is first needed after
   new samples arrived (i.e. at the start of each outage); predicts with the numpy forward pass, and only for
@@ -31,7 +31,7 @@ MODELS = ("none", "anfis", "elman")
 class AnfisCompensator:
     """ANFIS (hybrid LSE + FR-CG) over the newest `window` samples; retrains lazily when new samples arrived."""
 
-    def __init__(self, target: str = "position", n_rules: int = 8, window: int = 2000, min_samples: int = 100,
+    def __init__(self, target: str = "body_velocity", n_rules: int = 8, window: int = 2000, min_samples: int = 100,
                  max_epochs: int = 30, seed: int = 0, max_domain_excess: float = 0.5):
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
@@ -84,7 +84,7 @@ class ElmanCompensator:
     ANFIS, it answers only features within `max_domain_excess` training standard deviations of the range of
     the features it has learned from."""
 
-    def __init__(self, target: str = "position", n_hidden: int = 12, window: int = 200, threshold: float = 0.8,
+    def __init__(self, target: str = "body_velocity", n_hidden: int = 12, window: int = 200, threshold: float = 0.8,
                  seed: int = 0, max_domain_excess: float = 0.5):
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
@@ -144,7 +144,7 @@ class ElmanCompensator:
         return self.net.predict(query.features), self.std()
 
 
-def make_compensator(model: str, target: str = "position", seed: int = 0):
+def make_compensator(model: str, target: str = "body_velocity", seed: int = 0):
     """'none' -> None, 'anfis' or 'elman' -> a compensator for the given target variant."""
     if model == "none":
         return None
@@ -155,7 +155,7 @@ def make_compensator(model: str, target: str = "position", seed: int = 0):
     raise ValueError(f"unknown compensation model {model!r}; choose from {MODELS}")
 
 
-def training_set(ds, target: str = "position", navigator=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def training_set(ds, target: str = "body_velocity", navigator=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Features (N, n_features), targets (N, n_outputs) and times t_ns (N,) of the learning samples of one target
     variant that the engine emits over the whole of ds with full GNSS (the set the trainer would see).
     navigator: the engine to run (its config must have learning on); default: ds's config with learning."""

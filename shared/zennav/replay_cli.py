@@ -39,7 +39,7 @@ def _parse_every(text: str) -> tuple[float, float, float]:
 
 
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
-                   target: str = "position", heading_unknown: bool = False, adaptive_r: bool | None = None) -> dict:
+                   target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override NavConfig.adaptive_r (None: keep)."""
     from .compensation import make_compensator
@@ -92,7 +92,7 @@ _outage_opts = [
     click.option("--json", "as_json", is_flag=True, help="Print metrics.json instead of the table."),
     click.option("--compensation", type=click.Choice(["none", "anfis", "elman"]), default="none", show_default=True,
                  help="Learned INS-error compensation during outages (ANFIS: seed 000, Elman: seed 002)."),
-    click.option("--target", type=click.Choice(TARGETS), default="position", show_default=True,
+    click.option("--target", type=click.Choice(TARGETS), default="body_velocity", show_default=True,
                  help="What the model learns (zennav.nav.learning): the filter's position corrections (seed 000), its "
                  "velocity corrections, i.e. increments of INS minus filter (seed 002), the drift of a free INS "
                  "since a fix, or the vehicle's body-frame velocity (a learned motion model)."),
