@@ -272,6 +272,7 @@ def main() -> None:
     x_tr, y_tr, x_va, y_va = xn[:n_tr], yn[:n_tr], xn[n_tr:], yn[n_tr:]
     unit = UNITS[args.target]
     names = "/".join(OUTPUTS[args.target]).upper()
+    w = 11 * len(OUTPUTS[args.target])  # width of the per-output column
 
     def per_output(v) -> str:
         return " / ".join(f"{a:.4g}" for a in v)
@@ -315,9 +316,9 @@ def main() -> None:
     print("medians over seeds; RMSE normalised (1.0 = the target's training std) unless a unit is given\n")
 
     hdr = (f"{'method':<28}{'reached':>8}{'time to':>9}{'epochs to':>10}{'epochs':>8}{'train':>8}"
-           f"{'final':>8}{'final':>8}{'final val RMSE':>22}")
+           f"{'final':>8}{'final':>8}{'final val RMSE':>{w}}")
     hdr2 = (f"{'':<28}{'target':>8}{'target s':>9}{'target':>10}{'run':>8}{'time s':>8}"
-            f"{'train':>8}{'val':>8}{names + ' ' + unit:>22}")
+            f"{'train':>8}{'val':>8}{names + ' ' + unit:>{w}}")
     print(hdr)
     print(hdr2)
     print("-" * len(hdr))
@@ -332,20 +333,20 @@ def main() -> None:
         print(f"{LABELS[m]:<28}{f'{n_hit}/{len(rs)}':>8}{_fmt(t_med, '.2f'):>9}{_fmt(e_med, '.0f'):>10}"
               f"{_med([r.epochs[-1] for r in rs]):>8.0f}{_med([r.clock_s[-1] for r in rs]):>8.2f}"
               f"{_med([r.rmse[-1] for r in rs]):>8.4f}{_med([r.val_rmse[-1] for r in rs]):>8.3f}"
-              f"{per_output(phys):>22}")
+              f"{per_output(phys):>{w}}")
         ranking.append((t_med, m))
         for r, (c, e) in zip(rs, hits):
             if args.per_seed:
                 print(f"{'  seed ' + str(r.seed):<28}{'yes' if math.isfinite(c) else 'no':>8}{_fmt(c, '.2f'):>9}"
                       f"{_fmt(e, '.0f'):>10}{r.epochs[-1]:>8}{r.clock_s[-1]:>8.2f}{r.rmse[-1]:>8.4f}"
-                      f"{r.val_rmse[-1]:>8.3f}{per_output(r.val_rmse_out[-1] * y_std):>22}")
+                      f"{r.val_rmse[-1]:>8.3f}{per_output(r.val_rmse_out[-1] * y_std):>{w}}")
             if r.error:
                 print(f"{'':<4}seed {r.seed}: stopped at epoch {r.epochs[-1]}: {r.error}")
     # reference: the training mean as the prediction (zero in normalised units)
     base_out = np.sqrt(np.mean(y_va**2, axis=0))
     print(f"{'(predict the training mean)':<28}{'':>8}{'':>9}{'':>10}{'':>8}{'':>8}"
           f"{float(np.sqrt(np.mean(y_tr**2))):>8.4f}{float(np.sqrt(np.mean(y_va**2))):>8.3f}"
-          f"{per_output(base_out * y_std):>22}")
+          f"{per_output(base_out * y_std):>{w}}")
 
     ranking.sort()
     reached = [(t, m) for t, m in ranking if math.isfinite(t)]
