@@ -11,8 +11,8 @@ while GNSS is lost with a prediction of the query's target variant and its 1-sig
   only while its training error is under its threshold.
 The 1-sigma of an answer, per output (zennav.learn.sigma: out-of-sample residuals, their RMS inflated for their
 correlation from answer to answer): ANFIS, the residuals on the newest quarter of the samples of a fit on the
-rest (anfis_torch.fit_anfis_sigma); Elman, its one-step-ahead residuals over the window (each computed before
-the network learned that sample).
+rest (anfis_torch.fit_anfis_sigma); Elman, the residuals of a frozen copy running free over the following
+samples (ElmanCompensator).
 """
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ import numpy as np
 
 from .learn import anfis_numpy
 from .learn.elman import Elman
+from .learn.elman import step as elman_step
 from .learn.sigma import answer_sigma
 from .nav.learning import FEATURES, OUTPUTS, TARGETS, LearnQuery, LearnSample
 
@@ -82,25 +83,38 @@ class ElmanCompensator:
     """Online Elman network (seed 002) on a sliding window; silent until its training error is acceptable.
     The input/output normalisation is fixed from the first `window` samples, then learning starts. Like the
     ANFIS, it answers only features within `max_domain_excess` training standard deviations of the range of
-    the features it has learned from."""
+    the features it has learned from.
+
+    Its 1-sigma comes from free-running residuals, as the network is used in an outage: every `free_run_s` of
+    sample time a copy of the network is frozen (weights and context) and predicts the following samples,
+    advancing only its context, without learning; the residuals of those predictions (not the one-step-ahead
+    ones of the learning network, which keeps adapting) go through answer_sigma."""
 
     def __init__(self, target: str = "body_velocity", n_hidden: int = 12, window: int = 200, threshold: float = 0.8,
-                 seed: int = 0, max_domain_excess: float = 0.5):
+                 seed: int = 0, max_domain_excess: float = 0.5, free_run_s: float = 30.0):
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
         self.target, self.n_hidden, self.window, self.threshold, self.seed = target, n_hidden, window, threshold, seed
         self.max_domain_excess = max_domain_excess
         self.net: Elman | None = None
-        self._first: list[tuple[np.ndarray, np.ndarray]] = []
-        self._residuals: deque = deque(maxlen=window)
+        self._first: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self._residuals: deque = deque(maxlen=window)  # of the frozen copy
+        self.free_run_ns = int(free_run_s * 1e9)
+        self._frozen: tuple[int, dict] | None = None  # (start t_ns, arrays of the frozen copy)
         self._x_min = self._x_max = None  # range of the learned features
         self.learned = 0
         self.off_domain = 0
 
-    def _learn(self, x: np.ndarray, y: np.ndarray) -> None:
-        if self.net.ready:
-            self._residuals.append(self.net.predict(x) - y)
-        self.net.learn(x, y)
+    def _learn(self, t_ns: int, x: np.ndarray, y: np.ndarray) -> None:
+        net = self.net
+        if net.ready:
+            net.predict(x)  # the one-step answer (advances the context the window stores, as in service)
+            if self._frozen is None or t_ns - self._frozen[0] >= self.free_run_ns:
+                self._frozen = (t_ns, {k: v.copy() for k, v in net.arrays().items()})
+            arrays = self._frozen[1]
+            y_free, arrays["context"] = elman_step(arrays, net.norm(), x, arrays["context"], net.context_gain)
+            self._residuals.append(y_free - y)
+        net.learn(x, y)
         self.learned += 1
         self._x_min = x.copy() if self._x_min is None else np.minimum(self._x_min, x)
         self._x_max = x.copy() if self._x_max is None else np.maximum(self._x_max, x)
@@ -111,16 +125,16 @@ class ElmanCompensator:
                 continue
             x, y = np.asarray(s.features, dtype=float), np.asarray(s.value, dtype=float)
             if self.net is not None:
-                self._learn(x, y)
+                self._learn(s.t_ns, x, y)
                 continue
-            self._first.append((x, y))
+            self._first.append((s.t_ns, x, y))
             if len(self._first) == self.window:
-                xs, ys = (np.array(v) for v in zip(*self._first))
+                xs, ys = (np.array(v) for v in list(zip(*self._first))[1:])
                 self.net = Elman(len(FEATURES[self.target]), self.n_hidden, len(OUTPUTS[self.target]), window=self.window, threshold=self.threshold,
                                  norm=anfis_numpy.fit_normalization(xs, ys), seed=self.seed)
                 self.net.set_aligned()  # samples only come from a converged filter
-                for xi, yi in self._first:
-                    self._learn(xi, yi)
+                for ti, xi, yi in self._first:
+                    self._learn(ti, xi, yi)
                 self._first = []
 
     @property
@@ -132,7 +146,7 @@ class ElmanCompensator:
         return {**self.net.norm(), "x_min": self._x_min, "x_max": self._x_max}
 
     def std(self) -> np.ndarray:
-        """1-sigma per output (physical units): answer_sigma of the one-step prediction residuals over the window."""
+        """1-sigma per output (physical units): answer_sigma of the free-running residuals (class docstring)."""
         return answer_sigma(np.array(self._residuals))[0]
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:

@@ -139,3 +139,31 @@ def test_body_velocity_window_slides_by_gnss_intervals_and_restarts_after_an_out
         tap.maybe_query(t, s, 0.25)
     tap.on_fix(t, s, np.zeros(15), True, [0.0] * 3, [0.0] * 3, (0.0,) * 3, (0.0,) * 3)
     assert not [x for x in tap.samples if x.target == "body_velocity"]  # less than 1 s since the window restarted
+
+
+def test_elman_sigma_is_that_of_the_network_running_free():
+    """A target the features do not explain (a random walk): the learning network follows it from sample to
+    sample, a frozen copy (as in an outage) cannot, and the 1-sigma is the frozen copy's."""
+    from zennav.compensation import ElmanCompensator
+    from zennav.learn import anfis_numpy
+    from zennav.learn.elman import Elman
+    from zennav.learn.sigma import answer_sigma
+    from zennav.nav.learning import BODY_FEATURES, LearnSample
+
+    rng = np.random.default_rng(11)
+    n = 1200
+    x = rng.normal(size=(n, len(BODY_FEATURES)))
+    y = np.cumsum(rng.normal(0.0, 0.05, (n, 3)), axis=0)
+    comp = ElmanCompensator("body_velocity", free_run_s=30.0)
+    comp.add([LearnSample(int(k * 1e9), "body_velocity", x[k], y[k]) for k in range(n)])
+    # the one-step residuals of the same network, learning as the compensator's does
+    net = Elman(len(BODY_FEATURES), comp.n_hidden, 3, window=comp.window, threshold=comp.threshold,
+                norm=anfis_numpy.fit_normalization(x[:comp.window], y[:comp.window]), seed=comp.seed)
+    net.set_aligned()
+    one_step = []
+    for k in range(n):
+        if net.ready:
+            one_step.append(net.predict(x[k]) - y[k])
+        net.learn(x[k], y[k])
+    one_step_sigma = answer_sigma(np.array(one_step[-comp.window:]))[0]
+    assert np.all(comp.std() > 1.5 * one_step_sigma), (comp.std(), one_step_sigma)

@@ -20,8 +20,8 @@ Schedule: per target, the newest --window samples are kept; a training starts wh
 held and either --retrain-samples new ones arrived or --retrain-every seconds passed since the last training
 with new samples. Training runs on its own thread, so samples keep arriving meanwhile. The set's metrics carry
 the target, the sample count and time span, the device, epochs, wall time, the training RMSE per output and
-sigma, the predictor's 1-sigma per output: ANFIS, the larger of the training RMSE and the RMS error on the
-newest quarter of the samples of a fit on the rest; Elman, its one-step-ahead residual RMS over the window.
+sigma, the predictor's 1-sigma per output (zennav.compensation: out-of-sample residuals inflated for their
+correlation; ANFIS on the newest quarter of the samples of a fit on the rest, Elman running free).
 
 Versions: one integer per model name, +1 per training. At start the trainer asks for the latest set of each of
 its names on the bus and continues above it (else from --first-version), so a restarted trainer's sets are
@@ -164,7 +164,7 @@ class TrainerNode:
         self.publish(name, msg)
         self.counts[f"trainings_{target}"] += 1
         self.last[target] = {"version": version, "samples": comp.learned, "sigma": [round(v, 4) for v in std]}
-        self.log.info("published %s v%d: learned %d samples online, one-step residual rms %s", name, version,
+        self.log.info("published %s v%d: learned %d samples online, 1-sigma %s", name, version,
                       comp.learned, self.last[target]["sigma"])
         return msg
 
