@@ -122,7 +122,7 @@ class LearningTap:
     """The engine's side of the learning loop: windows, shadow INSs, samples and queries (see module docstring).
 
     horizon_s: longest drift horizon [s]; shadow_every_s: period of shadow starts [s]; sample_every_s: period
-    of drift samples per shadow [s]; body_every_s: period of body-velocity samples and queries [s]."""
+    of drift samples per shadow [s]; body_every_s: span of the body-velocity features and period of its queries [s]."""
 
     def __init__(self, horizon_s: float = 60.0, shadow_every_s: float = 10.0, sample_every_s: float = 1.0,
                  body_every_s: float = 1.0):
