@@ -58,7 +58,8 @@ class AnfisCompensator:
         from .learn.anfis_torch import TrainConfig, fit_anfis_sigma  # torch only when training in-process
 
         x, y = np.array(self._x), np.array(self._y)
-        fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=TrainConfig(max_epochs=self.max_epochs, seed=self.seed))
+        config = TrainConfig(max_epochs=self.max_epochs, seed=self.seed)
+        fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=config)
         self.model = (fit.arrays, fit.norm)
         self.sigma = np.asarray(fit.metrics["sigma"], dtype=float)
         self.trainings.append({"samples": len(x), **{k: fit.metrics[k] for k in ("epochs", "wall_s", "train_rmse",
@@ -130,7 +131,8 @@ class ElmanCompensator:
             self._first.append((s.t_ns, x, y))
             if len(self._first) == self.window:
                 xs, ys = (np.array(v) for v in list(zip(*self._first))[1:])
-                self.net = Elman(len(FEATURES[self.target]), self.n_hidden, len(OUTPUTS[self.target]), window=self.window, threshold=self.threshold,
+                self.net = Elman(len(FEATURES[self.target]), self.n_hidden, len(OUTPUTS[self.target]),
+                                 window=self.window, threshold=self.threshold,
                                  norm=anfis_numpy.fit_normalization(xs, ys), seed=self.seed)
                 self.net.set_aligned()  # samples only come from a converged filter
                 for ti, xi, yi in self._first:
