@@ -23,8 +23,8 @@ import numpy as np
 from .learn import anfis_numpy
 from .learn.elman import Elman
 from .learn.elman import step as elman_step
-from .learn.sigma import answer_sigma
-from .nav.learning import FEATURES, OUTPUTS, TARGETS, LearnQuery, LearnSample
+from .learn.sigma import answer_lag, answer_sigma
+from .nav.learning import ANSWER_PERIOD_S, FEATURES, OUTPUTS, TARGETS, LearnQuery, LearnSample
 
 MODELS = ("none", "anfis", "elman")
 
@@ -40,6 +40,7 @@ class AnfisCompensator:
             target, n_rules, min_samples, max_epochs, seed)
         self.max_domain_excess = max_domain_excess
         self.off_domain = 0  # queries refused: features outside the training range
+        self._t: deque = deque(maxlen=window)
         self._x: deque = deque(maxlen=window)
         self._y: deque = deque(maxlen=window)
         self._stale = False
@@ -50,6 +51,7 @@ class AnfisCompensator:
     def add(self, samples: list[LearnSample]) -> None:
         for s in samples:
             if s.target == self.target:
+                self._t.append(s.t_ns)
                 self._x.append(s.features)
                 self._y.append(s.value)
                 self._stale = True
@@ -57,9 +59,10 @@ class AnfisCompensator:
     def _train(self) -> None:
         from .learn.anfis_torch import TrainConfig, fit_anfis_sigma  # torch only when training in-process
 
-        x, y = np.array(self._x), np.array(self._y)
+        x, y, t_ns = np.array(self._x), np.array(self._y), np.array(self._t)
         config = TrainConfig(max_epochs=self.max_epochs, seed=self.seed)
-        fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=config)
+        lag = answer_lag(t_ns[int(round(0.75 * len(t_ns))):], ANSWER_PERIOD_S[self.target])
+        fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=config, answer_lag=lag)
         self.model = (fit.arrays, fit.norm)
         self.sigma = np.asarray(fit.metrics["sigma"], dtype=float)
         self.trainings.append({"samples": len(x), **{k: fit.metrics[k] for k in ("epochs", "wall_s", "train_rmse",
@@ -100,6 +103,7 @@ class ElmanCompensator:
         self.net: Elman | None = None
         self._first: list[tuple[int, np.ndarray, np.ndarray]] = []
         self._residuals: deque = deque(maxlen=window)  # of the frozen copy
+        self._residual_t: deque = deque(maxlen=window)  # their times [ns]
         self.free_run_ns = int(free_run_s * 1e9)
         self._frozen: tuple[int, dict] | None = None  # (start t_ns, arrays of the frozen copy)
         self._x_min = self._x_max = None  # range of the learned features
@@ -115,6 +119,7 @@ class ElmanCompensator:
             arrays = self._frozen[1]
             y_free, arrays["context"] = elman_step(arrays, net.norm(), x, arrays["context"], net.context_gain)
             self._residuals.append(y_free - y)
+            self._residual_t.append(t_ns)
         net.learn(x, y)
         self.learned += 1
         self._x_min = x.copy() if self._x_min is None else np.minimum(self._x_min, x)
@@ -149,7 +154,8 @@ class ElmanCompensator:
 
     def std(self) -> np.ndarray:
         """1-sigma per output (physical units): answer_sigma of the free-running residuals (class docstring)."""
-        return answer_sigma(np.array(self._residuals))[0]
+        lag = answer_lag(np.array(self._residual_t), ANSWER_PERIOD_S[self.target])
+        return answer_sigma(np.array(self._residuals), lag=lag)[0]
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, np.ndarray] | None:
         if query.target != self.target or not self.ready:

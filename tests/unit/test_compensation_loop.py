@@ -167,3 +167,23 @@ def test_elman_sigma_is_that_of_the_network_running_free():
         net.learn(x[k], y[k])
     one_step_sigma = answer_sigma(np.array(one_step[-comp.window:]))[0]
     assert np.all(comp.std() > 1.5 * one_step_sigma), (comp.std(), one_step_sigma)
+
+
+def test_body_features_are_the_time_weighted_mean_and_spread_of_the_rates():
+    """FeatureWindow.body_features: mean and standard deviation of f_b and omega_ib_b over uneven IMU intervals,
+    as numpy's weighted statistics of the per-interval rates; a zero-length interval changes nothing."""
+    from zennav.nav.learning import FeatureWindow
+
+    rng = np.random.default_rng(11)
+    dt = rng.uniform(0.004, 0.006, 200)
+    f, w = rng.normal(0.0, 2.0, (200, 3)) + [0.5, -0.2, -9.8], rng.normal(0.0, 0.1, (200, 3))
+    win = FeatureWindow()
+    for k in range(200):
+        win.add(w[k] * dt[k], f[k] * dt[k], dt[k])
+    win.add([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], 0.0)
+    rates = np.hstack([f, w])
+    mean = np.average(rates, axis=0, weights=dt)
+    std = np.sqrt(np.average((rates - mean) ** 2, axis=0, weights=dt))
+    feats = win.body_features()
+    assert feats.shape == (len(BODY_FEATURES),)
+    np.testing.assert_allclose(feats, np.concatenate([mean, std]), rtol=1e-9, atol=1e-12)

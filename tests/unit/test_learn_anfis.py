@@ -20,7 +20,7 @@ from zennav.learn.anfis_torch import (  # noqa: E402
 )
 from zennav.learn.lse import ridge_lstsq  # noqa: E402
 from zennav.learn.pso import PSOConfig  # noqa: E402
-from zennav.learn.sigma import answer_sigma  # noqa: E402
+from zennav.learn.sigma import answer_lag, answer_sigma  # noqa: E402
 
 
 def _sinc2d(n=11):
@@ -226,3 +226,20 @@ def test_answer_sigma_inflates_correlated_residuals_by_the_ar1_factor():
     assert sigma[1] == pytest.approx(np.sqrt(np.mean(ar**2)) * 3.0, rel=0.05)  # sqrt(1.8 / 0.2) = 3
     sigma, rho = answer_sigma(np.array([[1.0], [-1.0], [1.0], [-1.0]]))  # anti-correlated: no deflation
     assert rho[0] == 0.0 and sigma[0] == pytest.approx(1.0)
+
+
+def test_answer_sigma_takes_the_correlation_one_answer_apart():
+    """Residuals at 5 Hz, answers every second: the AR(1) factor uses the autocorrelation 5 residuals apart
+    (0.9^5 = 0.59), not the one of neighbouring residuals (0.9), which would inflate the sigma twice as much."""
+    rng = np.random.default_rng(10)
+    ar = np.zeros((40000, 1))
+    for k in range(1, len(ar)):
+        ar[k] = 0.9 * ar[k - 1] + rng.normal()
+    t_ns = np.arange(len(ar), dtype=np.int64) * 200_000_000
+    assert answer_lag(t_ns, 1.0) == 5 and answer_lag(t_ns, 0.0) == 1 and answer_lag(t_ns[:1], 1.0) == 1
+    sigma, rho = answer_sigma(ar, lag=5)
+    assert rho[0] == pytest.approx(0.9**5, abs=0.03)
+    assert sigma[0] == pytest.approx(np.sqrt(np.mean(ar**2) * (1 + 0.9**5) / (1 - 0.9**5)), rel=0.05)
+    assert answer_sigma(ar)[1][0] == pytest.approx(0.9, abs=0.02)
+    with pytest.raises(ValueError):
+        answer_sigma(ar, lag=0)

@@ -20,9 +20,10 @@ Four target variants; the first three have N and E components:
 Rate features (11): mean specific force f_b [m/s^2] and angular rate omega_ib_b [rad/s] over the interval,
 v_n [m/s], sin and cos of the yaw. Drift features (13): time since the start tau [s], mean f_b and omega_ib_b
 since the start, v_n of the free INS, sin and cos of the yaw at the start, yaw change since the start [rad].
-Body-velocity features (6): mean f_b and omega_ib_b over the last `body_every_s` (a sample: the whole GNSS intervals
-that cover it; a query: exactly that long); not the INS's own velocity, which a model would learn to echo (it
-equals the target while GNSS is good).
+Body-velocity features (12): mean f_b [m/s^2] and omega_ib_b [rad/s] over the last `body_every_s` (a sample: the
+whole GNSS intervals that cover it; a query: exactly that long) and their standard deviations over it: the
+vibration, which grows with a car's speed on the road (and a rotor's speed); not the INS's own velocity, which a
+model would learn to echo (it equals the target while GNSS is good).
 Samples are emitted only after the filter converged; queries only while no GNSS is fused, every 1.5 GNSS
 intervals (rate targets), every second (drift) and every `body_every_s` once 1.5 GNSS intervals passed without
 a fix (body velocity), with the same features as the samples.
@@ -42,10 +43,14 @@ from .strapdown import NavState, mechanize
 TARGETS = ("position", "velocity", "drift", "body_velocity")
 RATE_FEATURES = ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "v_n", "v_e", "v_d", "sin_yaw", "cos_yaw")
 DRIFT_FEATURES = ("tau",) + RATE_FEATURES[:-2] + ("sin_yaw0", "cos_yaw0", "dyaw")
-BODY_FEATURES = RATE_FEATURES[:6]
+BODY_FEATURES = RATE_FEATURES[:6] + ("sd_f_x", "sd_f_y", "sd_f_z", "sd_w_x", "sd_w_y", "sd_w_z")
 FEATURES = {"position": RATE_FEATURES, "velocity": RATE_FEATURES, "drift": DRIFT_FEATURES,
             "body_velocity": BODY_FEATURES}
 OUTPUTS = {"position": ("n", "e"), "velocity": ("n", "e"), "drift": ("n", "e"), "body_velocity": ("x", "y", "z")}
+BODY_EVERY_S = 1.0
+# Time between two answers of a target, for the correlation of their errors (zennav.learn.sigma.answer_lag); 0: the
+# next sample (rate targets: queries about as often as fixes; drift: samples of several shadows interleave).
+ANSWER_PERIOD_S = {"position": 0.0, "velocity": 0.0, "drift": 0.0, "body_velocity": BODY_EVERY_S}
 
 
 @dataclass
@@ -69,26 +74,39 @@ class LearnQuery:
 
 
 class FeatureWindow:
-    """Sums of bias-corrected increments [rad, m/s] and the yaw [rad] at the window start."""
+    """Sums of bias-corrected increments [rad, m/s], of their squares over dt (for the spread of the rates) and
+    the yaw [rad] at the window start."""
 
     def __init__(self, yaw0: float = 0.0):
         self.dtheta = [0.0, 0.0, 0.0]
         self.dvel = [0.0, 0.0, 0.0]
+        self.sq = [0.0] * 6  # sums of dvel^2 / dt, then dtheta^2 / dt
         self.dt = 0.0
         self.yaw0 = yaw0
 
     def add(self, dtheta, dvel, dt: float) -> None:
-        a, v = self.dtheta, self.dvel
+        a, v, q = self.dtheta, self.dvel, self.sq
         a[0] += dtheta[0]
         a[1] += dtheta[1]
         a[2] += dtheta[2]
         v[0] += dvel[0]
         v[1] += dvel[1]
         v[2] += dvel[2]
-        self.dt += dt
+        if dt > 0.0:
+            q[0] += dvel[0] * dvel[0] / dt
+            q[1] += dvel[1] * dvel[1] / dt
+            q[2] += dvel[2] * dvel[2] / dt
+            q[3] += dtheta[0] * dtheta[0] / dt
+            q[4] += dtheta[1] * dtheta[1] / dt
+            q[5] += dtheta[2] * dtheta[2] / dt
+            self.dt += dt
 
     def means(self) -> list[float]:
         return [x / self.dt for x in self.dvel] + [x / self.dt for x in self.dtheta]
+
+    def body_features(self) -> np.ndarray:
+        """Mean f_b [m/s^2] and omega_ib_b [rad/s] and their standard deviations over the window (time-weighted)."""
+        return _body_features(self.dvel + self.dtheta, self.sq, self.dt)
 
     def rate_features(self, s: NavState) -> np.ndarray:
         yaw = s.euler[2]
@@ -125,7 +143,7 @@ class LearningTap:
     of drift samples per shadow [s]; body_every_s: span of the body-velocity features and period of its queries [s]."""
 
     def __init__(self, horizon_s: float = 60.0, shadow_every_s: float = 10.0, sample_every_s: float = 1.0,
-                 body_every_s: float = 1.0):
+                 body_every_s: float = BODY_EVERY_S):
         self.horizon_ns = int(horizon_s * 1e9)
         self.every_ns = int(shadow_every_s * 1e9)
         self.sample_ns = int(sample_every_s * 1e9)
@@ -183,9 +201,10 @@ class LearningTap:
             chunks.popleft()
         dt = sum(c.dt for c in chunks)
         if converged and dt >= self.body_every_s:
-            means = np.array([sum(c.dvel[i] for c in chunks) for i in range(3)]
-                             + [sum(c.dtheta[i] for c in chunks) for i in range(3)]) / dt
-            self.samples.append(LearnSample(t_ns, "body_velocity", means, s.C_nb.T @ s.v_n))
+            sums = [sum(c.dvel[i] for c in chunks) for i in range(3)] + [sum(c.dtheta[i] for c in chunks)
+                                                                         for i in range(3)]
+            features = _body_features(sums, [sum(c.sq[i] for c in chunks) for i in range(6)], dt)
+            self.samples.append(LearnSample(t_ns, "body_velocity", features, s.C_nb.T @ s.v_n))
 
     def maybe_query(self, t_ns: int, s: NavState, gnss_interval_s: float | None) -> None:
         """While no fix is fused: a rate query every 1.5 GNSS intervals, a drift query every second and a
@@ -199,9 +218,15 @@ class LearningTap:
             self.last_query_ns = t_ns
             self.queries.append(LearnQuery(t_ns, "drift", self.since_fix.drift_features(s), self.since_fix.dt))
         if gnss_interval_s and self.body_window.dt >= self.body_every_s and self.since_fix.dt >= 1.5 * gnss_interval_s:
-            self.queries.append(LearnQuery(t_ns, "body_velocity", np.array(self.body_window.means()),
+            self.queries.append(LearnQuery(t_ns, "body_velocity", self.body_window.body_features(),
                                            self.body_window.dt))
             self.body_window = FeatureWindow()
+
+
+def _body_features(sums, sq_sums, dt: float) -> np.ndarray:
+    """Means and standard deviations of the rates from the sums of their increments and of increment^2 / dt."""
+    mean = np.array(sums) / dt
+    return np.concatenate([mean, np.sqrt(np.maximum(np.array(sq_sums) / dt - mean * mean, 0.0))])
 
 
 def _ne_offset(a: NavState, b: NavState) -> np.ndarray:
