@@ -17,7 +17,7 @@ max(--first-s, min(half the flight, its end minus the window)). 30 s windows fit
 none.
 
     .venv/bin/python benchmarks/outage_learning.py [--dataset rtklibexplorer|ansfl] [--target body_velocity]
-        [--windows 10,30,60]
+        [--windows 10,30,60] [--seeds 0,1,2]
 """
 from __future__ import annotations
 
@@ -36,13 +36,28 @@ from zennav.replay import run_replay
 HEADER = f"{'window':>7}{'compensation':>14}{'windows':>9}{'RMS of max m':>14}{'max m':>9}{'vs INS':>9}{'answered':>10}{'wall s':>8}"
 
 
-def _row(length: float, model: str, drifts: list[float], base: float | None, answered: int, wall: float) -> float:
+def _row(length: float, label: str, drifts: list[float], base: float | None, answered: int, wall: float) -> float:
+    """Print one row; returns its RMS of the per-window maxima (base: pure INS's, None for pure INS itself)."""
     d = np.asarray(drifts, dtype=float)
     rms, mx = float(np.sqrt(np.mean(d**2))), float(d.max())
     base = rms if base is None else base
-    print(f"{length:>6.0f}s{model:>14}{len(d):>9}{rms:>14.2f}{mx:>9.2f}{100.0 * (rms - base) / base:>8.0f}%"
+    print(f"{length:>6.0f}s{label:>14}{len(d):>9}{rms:>14.2f}{mx:>9.2f}{100.0 * (rms - base) / base:>8.0f}%"
           f"{answered:>10}{wall:>8.1f}", flush=True)
-    return base
+    return rms
+
+
+def _runs(seeds: list[int]):
+    """(model, seed, label) of each row: pure INS once, each learned model once per seed."""
+    for model in MODELS:
+        for seed in seeds if model != "none" else [0]:
+            yield model, seed, model if len(seeds) == 1 or model == "none" else f"{model} s{seed}"
+
+
+def _median_row(length: float, model: str, rms: list[float], base: float, seeds: list[int]) -> None:
+    if len(seeds) > 1 and model != "none":
+        m = float(np.median(rms))
+        print(f"{length:>6.0f}s{model + ' median':>14}{'':>9}{m:>14.2f}{'':>9}{100.0 * (m - base) / base:>8.0f}%",
+              flush=True)
 
 
 def _answered(res) -> int:
@@ -56,13 +71,16 @@ def drive(args) -> None:
     print(HEADER)
     for length in (float(x) for x in args.windows.split(",")):
         every = (length + args.gap_s, length, args.train_s)
-        base = None
-        for model in MODELS:
+        base, rms = None, {}
+        for model, seed, label in _runs(args.seeds):
             t0 = time.perf_counter()
-            res = run_replay(ds, outage_every=every, compensator=make_compensator(model, args.target))
+            res = run_replay(ds, outage_every=every, compensator=make_compensator(model, args.target, seed))
             m = evaluate(ds, res)
-            base = _row(length, model, [w["max_horizontal_m"] for w in m["outages"]], base, _answered(res),
-                        time.perf_counter() - t0)
+            rms.setdefault(model, []).append(_row(length, label, [w["max_horizontal_m"] for w in m["outages"]], base,
+                                                  _answered(res), time.perf_counter() - t0))
+            base = rms["none"][0]
+            if seed == args.seeds[-1]:
+                _median_row(length, model, rms[model], base, args.seeds)
 
 
 class Frozen:
@@ -101,14 +119,14 @@ def quadrotor(args) -> None:
         if not tests:
             print(f"{length:>6.0f}s  no flight is long enough")
             continue
-        base = None
-        for model in MODELS:
+        base, rms = None, {}
+        for model, seed, label in _runs(args.seeds):
             t0 = time.perf_counter()
             drifts, answered = [], 0
             for k, fold in enumerate(folds):
                 comp = None
                 if model != "none":
-                    comp = make_compensator(model, args.target)
+                    comp = make_compensator(model, args.target, seed)
                     comp.add([smp for s in folds[1 - k] for smp in samples[s]])
                 for spec in (s for s in fold if s in tests):
                     ds, start = tests[spec], starts[spec]
@@ -117,7 +135,10 @@ def quadrotor(args) -> None:
                                      compensator=Frozen(comp) if comp is not None else None)
                     drifts += [w["max_horizontal_m"] for w in evaluate(ds, res)["outages"]]
                     answered += _answered(res)
-            base = _row(length, model, drifts, base, answered, time.perf_counter() - t0)
+            rms.setdefault(model, []).append(_row(length, label, drifts, base, answered, time.perf_counter() - t0))
+            base = rms["none"][0]
+            if seed == args.seeds[-1]:
+                _median_row(length, model, rms[model], base, args.seeds)
 
 
 def main() -> None:
@@ -130,6 +151,8 @@ def main() -> None:
     ap.add_argument("--first-s", type=float, default=10.0, help="ansfl: earliest window start in a flight [s]")
     ap.add_argument("--learn-after-s", type=float, default=3.0,
                     help="ansfl: samples from this long after the start of a training flight [s]")
+    ap.add_argument("--seeds", default="0", type=lambda v: [int(x) for x in v.split(",")],
+                    help="seeds of the learned models, one row each and their median (default 0)")
     args = ap.parse_args()
     if args.dataset == "ansfl":
         args.windows = args.windows or "10,30"

@@ -33,11 +33,14 @@ class AnfisCompensator:
     """ANFIS (hybrid LSE + FR-CG) over the newest `window` samples; retrains lazily when new samples arrived."""
 
     def __init__(self, target: str = "body_velocity", n_rules: int = 8, window: int = 2000, min_samples: int = 100,
-                 max_epochs: int = 30, seed: int = 0, max_domain_excess: float = 0.5):
+                 max_epochs: int = 30, seed: int = 0, max_domain_excess: float = 0.5, threads: int | None = 1):
+        """threads: torch's thread count while training (1: the fit, whose float reductions depend on it, is the
+        same on every machine; None: torch's default)."""
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
         self.target, self.n_rules, self.min_samples, self.max_epochs, self.seed = (
             target, n_rules, min_samples, max_epochs, seed)
+        self.threads = threads
         self.max_domain_excess = max_domain_excess
         self.off_domain = 0  # queries refused: features outside the training range
         self._t: deque = deque(maxlen=window)
@@ -57,12 +60,19 @@ class AnfisCompensator:
                 self._stale = True
 
     def _train(self) -> None:
-        from .learn.anfis_torch import TrainConfig, fit_anfis_sigma  # torch only when training in-process
+        import torch  # only when training in-process
+
+        from .learn.anfis_torch import TrainConfig, fit_anfis_sigma
 
         x, y, t_ns = np.array(self._x), np.array(self._y), np.array(self._t)
         config = TrainConfig(max_epochs=self.max_epochs, seed=self.seed)
         lag = answer_lag(t_ns[int(round(0.75 * len(t_ns))):], ANSWER_PERIOD_S[self.target])
-        fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=config, answer_lag=lag)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(self.threads or threads)
+        try:
+            fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=config, answer_lag=lag)
+        finally:
+            torch.set_num_threads(threads)
         self.model = (fit.arrays, fit.norm)
         self.sigma = np.asarray(fit.metrics["sigma"], dtype=float)
         self.trainings.append({"samples": len(x), **{k: fit.metrics[k] for k in ("epochs", "wall_s", "train_rmse",
@@ -94,8 +104,10 @@ class ElmanCompensator:
     advancing only its context, without learning; the residuals of those predictions (not the one-step-ahead
     ones of the learning network, which keeps adapting) go through answer_sigma."""
 
-    def __init__(self, target: str = "body_velocity", n_hidden: int = 12, window: int = 200, threshold: float = 0.8,
+    def __init__(self, target: str = "body_velocity", n_hidden: int = 12, window: int = 500, threshold: float = 0.8,
                  seed: int = 0, max_domain_excess: float = 0.5, free_run_s: float = 30.0):
+        """window: samples in the sliding window (500: 100 s of fixes at 5 Hz); threshold: training RMSE
+        (normalised) under which it answers; free_run_s: period of the frozen copies [s]."""
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
         self.target, self.n_hidden, self.window, self.threshold, self.seed = target, n_hidden, window, threshold, seed

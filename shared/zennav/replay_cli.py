@@ -39,9 +39,11 @@ def _parse_every(text: str) -> tuple[float, float, float]:
 
 
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
-                   target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None) -> dict:
+                   target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None,
+                   seed: int = 0) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
-    initial state without its yaw (alignment); adaptive_r: override NavConfig.adaptive_r (None: keep)."""
+    initial state without its yaw (alignment); adaptive_r: override NavConfig.adaptive_r (None: keep); seed: of
+    the learned model."""
     from .compensation import make_compensator
     from .datasets.registry import load_dataset
 
@@ -53,9 +55,10 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.initial = replace(ds.initial, heading_known=False)
     if adaptive_r is not None:
         ds.config = ds.config.with_(adaptive_r=adaptive_r)
-    res = run_replay(ds, outages=list(outages), outage_every=every, compensator=make_compensator(compensation, target))
+    res = run_replay(ds, outages=list(outages), outage_every=every, compensator=make_compensator(compensation, target, seed))
     metrics = evaluate(ds, res)
-    metrics["compensation"] = {"model": compensation, "target": target if compensation != "none" else None}
+    metrics["compensation"] = {"model": compensation, "target": target if compensation != "none" else None,
+                               "seed": seed if compensation != "none" else None}
     if out is not None:
         write_outputs(out, ds, res, metrics)
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
@@ -96,6 +99,8 @@ _outage_opts = [
                  help="What the model learns (zennav.nav.learning): the filter's position corrections (seed 000), its "
                  "velocity corrections, i.e. increments of INS minus filter (seed 002), the drift of a free INS "
                  "since a fix, or the vehicle's body-frame velocity (a learned motion model)."),
+    click.option("--seed", type=int, default=0, show_default=True,
+                 help="Seed of the learned model (ANFIS: k-means rule base and premises; Elman: initial weights)."),
     click.option("-v", "--verbose", count=True, help="Log engine events (-v: warnings, -vv: debug)."),
 ]
 
@@ -123,7 +128,7 @@ def _setup_logging(verbose: int) -> None:
               help="Innovation-based adaptive GNSS measurement noise (seed 001); default: the dataset's setting (off).")
 @_with_outage_opts
 def replay(dataset, kf_gins_config, heading_unknown, adaptive_r, outages, every, out, as_json, compensation, target,
-           verbose):
+           seed, verbose):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
@@ -134,7 +139,7 @@ def replay(dataset, kf_gins_config, heading_unknown, adaptive_r, outages, every,
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
-                   heading_unknown, adaptive_r)
+                   heading_unknown, adaptive_r, seed)
 
 
 @click.command()

@@ -253,16 +253,16 @@ def test_elman_trainer_publishes_once_ready_and_the_predictor_runs_the_same_netw
     node = TrainerNode(lambda name, msg: published.append((name, msg)), LOG, ("drift",), model="elman",
                        min_samples=50, retrain_samples=50, retrain_every_s=0)
     rng = np.random.default_rng(1)
-    xs = rng.normal(size=(400, N_IN))
+    xs = rng.normal(size=(700, N_IN))
     ys = np.stack([0.5 * xs[:, 0], -0.3 * xs[:, 1]], axis=1)  # a learnable map
-    for i in range(150):
+    for i in range(300):
         node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
     assert node.due() == ["drift"] and node.train("drift") is None and not published  # window not full yet
-    for i in range(150, 400):
+    for i in range(300, 700):
         node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
     msg = node.train("drift")
     assert msg is not None and published[-1][0] == "elman-drift" and msg["kind"] == "elman"
-    assert msg["metrics"]["samples"] == 400
+    assert msg["metrics"]["samples"] == 700
     comp = node.elman["drift"]
     pred = PredictorNode(lambda m: None, LOG)
     assert pred.on_model(K.learn_model("elman-drift"), _wire(msg), 0)
