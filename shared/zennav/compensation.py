@@ -95,7 +95,7 @@ class AnfisCompensator:
 
 class ElmanCompensator:
     """Online Elman network (seed 002) on a sliding window; silent until its training error is acceptable.
-    The input/output normalisation is fixed from the first `first` samples, then learning starts. Like the
+    The input/output normalisation is fixed from the first `window` samples, then learning starts. Like the
     ANFIS, it answers only features within `max_domain_excess` training standard deviations of the range of
     the features it has learned from.
 
@@ -105,17 +105,12 @@ class ElmanCompensator:
     ones of the learning network, which keeps adapting) go through answer_sigma."""
 
     def __init__(self, target: str = "body_velocity", n_hidden: int = 12, window: int = 500, threshold: float = 0.8,
-                 seed: int = 0, max_domain_excess: float = 0.5, free_run_s: float = 30.0, first: int = 200):
-        """window: samples in the sliding window (500: 100 s of fixes at 5 Hz); first: samples that fix the
-        normalisation, after which learning starts and the network may answer (the window still fills up to
-        `window`); threshold: training RMSE (normalised) under which it answers; free_run_s: period of the frozen
-        copies [s]."""
+                 seed: int = 0, max_domain_excess: float = 0.5, free_run_s: float = 30.0):
+        """window: samples in the sliding window (500: 100 s of fixes at 5 Hz); threshold: training RMSE
+        (normalised) under which it answers; free_run_s: period of the frozen copies [s]."""
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
-        if not 1 <= first <= window:
-            raise ValueError("first must be in 1..window")
         self.target, self.n_hidden, self.window, self.threshold, self.seed = target, n_hidden, window, threshold, seed
-        self.first = first
         self.max_domain_excess = max_domain_excess
         self.net: Elman | None = None
         self._first: list[tuple[int, np.ndarray, np.ndarray]] = []
@@ -151,10 +146,10 @@ class ElmanCompensator:
                 self._learn(s.t_ns, x, y)
                 continue
             self._first.append((s.t_ns, x, y))
-            if len(self._first) == self.first:
+            if len(self._first) == self.window:
                 xs, ys = (np.array(v) for v in list(zip(*self._first))[1:])
                 self.net = Elman(len(FEATURES[self.target]), self.n_hidden, len(OUTPUTS[self.target]),
-                                 window=self.window, min_samples=self.first, threshold=self.threshold,
+                                 window=self.window, threshold=self.threshold,
                                  norm=anfis_numpy.fit_normalization(xs, ys), seed=self.seed)
                 self.net.set_aligned()  # samples only come from a converged filter
                 for ti, xi, yi in self._first:
