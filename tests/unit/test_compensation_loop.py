@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zennav.compensation import make_compensator
+from zennav.compensation import ElmanCompensator, make_compensator
 from zennav.nav.learning import BODY_FEATURES, DRIFT_FEATURES, RATE_FEATURES, TARGETS
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
@@ -33,12 +33,13 @@ def test_anfis_loop_offers_corrections_during_outage_only(drive):
 def test_elman_predicts_only_under_its_error_threshold(drive):
     """Seed 002: the network predicts only while its training error is under the threshold. On this drive the
     per-interval corrections are GNSS noise (no learnable drift), so it must stay silent."""
-    comp = make_compensator("elman", "position")
+    comp = ElmanCompensator("position", window=200)  # the window fills before the outage (2 Hz fixes)
     res = run_replay(drive, outages=[(180.0, 30.0)], compensator=comp)
     assert comp.net is not None and comp.net.train_rmse > comp.threshold
     assert not [r for r in res.reports if r.source.startswith("learned")]
     comp.threshold = comp.net.threshold = 10.0
     comp._residuals.extend([np.zeros(2)] * 10)
+    comp._residual_t.extend(range(10))
     norm = comp.norm()
     inside = (norm["x_min"] + norm["x_max"]) / 2
     query = type("Q", (), {"target": "position", "features": inside})()
@@ -144,7 +145,6 @@ def test_body_velocity_window_slides_by_gnss_intervals_and_restarts_after_an_out
 def test_elman_sigma_is_that_of_the_network_running_free():
     """A target the features do not explain (a random walk): the learning network follows it from sample to
     sample, a frozen copy (as in an outage) cannot, and the 1-sigma is the frozen copy's."""
-    from zennav.compensation import ElmanCompensator
     from zennav.learn import anfis_numpy
     from zennav.learn.elman import Elman
     from zennav.learn.sigma import answer_sigma
