@@ -154,7 +154,7 @@ def test_elman_sigma_is_that_of_the_network_running_free():
     n = 1200
     x = rng.normal(size=(n, len(BODY_FEATURES)))
     y = np.cumsum(rng.normal(0.0, 0.05, (n, 3)), axis=0)
-    comp = ElmanCompensator("body_velocity", free_run_s=30.0)
+    comp = ElmanCompensator("body_velocity", window=200, free_run_s=30.0)
     comp.add([LearnSample(int(k * 1e9), "body_velocity", x[k], y[k]) for k in range(n)])
     # the one-step residuals of the same network, learning as the compensator's does
     net = Elman(len(BODY_FEATURES), comp.n_hidden, 3, window=comp.window, threshold=comp.threshold,
