@@ -106,8 +106,8 @@ class ElmanCompensator:
 
     def __init__(self, target: str = "body_velocity", n_hidden: int = 12, window: int = 500, threshold: float = 0.8,
                  seed: int = 0, max_domain_excess: float = 0.5, free_run_s: float = 30.0):
-        """window: samples in the sliding window (500: about 2 min of the car drive's 4 Hz fixes); threshold: training RMSE
-        (normalised) under which it answers; free_run_s: period of the frozen copies [s]."""
+        """window: samples in the sliding window (500: about 2 min of the car drive's 4 Hz fixes); threshold:
+        training RMSE (normalised) under which it answers; free_run_s: period of the frozen copies [s]."""
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
         self.target, self.n_hidden, self.window, self.threshold, self.seed = target, n_hidden, window, threshold, seed

@@ -55,10 +55,12 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.initial = replace(ds.initial, heading_known=False)
     if adaptive_r is not None:
         ds.config = ds.config.with_(adaptive_r=adaptive_r)
-    res = run_replay(ds, outages=list(outages), outage_every=every, compensator=make_compensator(compensation, target, seed))
+    res = run_replay(ds, outages=list(outages), outage_every=every,
+                     compensator=make_compensator(compensation, target, seed))
     metrics = evaluate(ds, res)
-    metrics["compensation"] = {"model": compensation, "target": target if compensation != "none" else None,
-                               "seed": seed if compensation != "none" else None}
+    learned = compensation != "none"
+    metrics["compensation"] = {"model": compensation, "target": target if learned else None,
+                               "seed": seed if learned else None}
     if out is not None:
         write_outputs(out, ds, res, metrics)
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))

@@ -3,11 +3,11 @@
 Answers come once per query interval (about a second) and a model's errors on neighbouring answers are alike
 (a learned speed that is 2 m/s off stays off for a while), whereas the Kalman filter takes each answer as
 independent. The RMS residual per output is therefore inflated by the AR(1) variance factor of the
-autocorrelation rho of residuals one answer apart (the residuals come at the sample cadence, e.g. every GNSS fix, and
-answers every `period_s`: the lag is that many residuals, see answer_lag): (1 + rho) / (1 - rho) is the ratio of the variance of a mean of AR(1) errors to that of
-independent ones (effective sample size n (1 - rho) / (1 + rho); e.g. Bartlett 1946, von Storch and Zwiers,
-"Statistical Analysis in Climate Research", 1999, sec. 17.1), so n correlated answers weigh about as much as
-their n_eff independent ones. rho is clipped to [0, RHO_MAX].
+autocorrelation rho of residuals one answer apart (the residuals come at the sample cadence, e.g. every GNSS fix,
+and answers every `period_s`: the lag is that many residuals, see answer_lag): (1 + rho) / (1 - rho) is the
+ratio of the variance of a mean of AR(1) errors to that of independent ones (effective sample size
+n (1 - rho) / (1 + rho); e.g. Bartlett 1946, von Storch and Zwiers, "Statistical Analysis in Climate Research",
+1999, sec. 17.1), so n correlated answers weigh about as much as their n_eff independent ones. rho is clipped to [0, RHO_MAX].
 """
 from __future__ import annotations
 
