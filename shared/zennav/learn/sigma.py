@@ -7,7 +7,8 @@ autocorrelation rho of residuals one answer apart (the residuals come at the sam
 and answers every `period_s`: the lag is that many residuals, see answer_lag): (1 + rho) / (1 - rho) is the
 ratio of the variance of a mean of AR(1) errors to that of independent ones (effective sample size
 n (1 - rho) / (1 + rho); e.g. Bartlett 1946, von Storch and Zwiers, "Statistical Analysis in Climate Research",
-1999, sec. 17.1), so n correlated answers weigh about as much as their n_eff independent ones. rho is clipped to [0, RHO_MAX].
+1999, sec. 17.1), so n correlated answers weigh about as much as their n_eff independent ones. rho is clipped to
+[0, RHO_MAX].
 """
 from __future__ import annotations
 
