@@ -66,11 +66,11 @@ class AnfisCompensator:
 
         x, y, t_ns = np.array(self._x), np.array(self._y), np.array(self._t)
         config = TrainConfig(max_epochs=self.max_epochs, seed=self.seed)
-        lag = answer_lag(t_ns[int(round(0.75 * len(t_ns))):], ANSWER_PERIOD_S[self.target])
         threads = torch.get_num_threads()
         torch.set_num_threads(self.threads or threads)
         try:
-            fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=config, answer_lag=lag)
+            fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, config=config, t_ns=t_ns,
+                                  answer_period_s=ANSWER_PERIOD_S[self.target])
         finally:
             torch.set_num_threads(threads)
         self.model = (fit.arrays, fit.norm)

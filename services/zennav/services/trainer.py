@@ -46,7 +46,6 @@ import numpy as np
 from zennav import messages as M
 from zennav.compensation import ElmanCompensator
 from zennav.learn import paramset
-from zennav.learn.sigma import answer_lag
 from zennav.nav.learning import ANSWER_PERIOD_S, FEATURES, OUTPUTS, TARGETS, LearnSample
 
 MODELS = ("anfis", "elman")
@@ -182,9 +181,9 @@ class TrainerNode:
         y = np.array([r[2] for r in rows], dtype=float)
         self.busy = f"training {target} on {len(rows)} samples"
         try:
-            lag = answer_lag(t_ns[int(round(0.75 * len(t_ns))):], ANSWER_PERIOD_S[target])
-            fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, device=self.device, answer_lag=lag,
-                            config=TrainConfig(method="hybrid_cg", max_epochs=self.max_epochs, seed=self.seed))
+            fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, device=self.device, t_ns=t_ns,
+                                  answer_period_s=ANSWER_PERIOD_S[target], config=TrainConfig(
+                                      method="hybrid_cg", max_epochs=self.max_epochs, seed=self.seed))
         except Exception:
             self.counts["train_errors"] += 1
             self.log.exception("training %s on %d samples failed; the last set stays published", target, len(x))

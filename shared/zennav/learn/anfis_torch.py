@@ -32,7 +32,7 @@ from . import anfis_numpy
 from .fr_cg import fr_cg
 from .lse import ridge_lstsq
 from .pso import PSOConfig, Swarm
-from .sigma import answer_sigma
+from .sigma import answer_lag, answer_sigma
 
 METHODS = ("hybrid_cg", "hybrid_gd", "adam", "pso")
 
@@ -345,14 +345,15 @@ def fit_anfis(x, y, *, n_rules: int | None = None, n_mf: int | None = None, conf
 
 
 def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig(), holdout: float = 0.25,
-                    answer_lag: int = 1, device=None) -> FitResult:
+                    t_ns=None, answer_period_s: float = 0.0, device=None) -> FitResult:
     """fit_anfis with a k-means rule base on all of x, y (rows in time order, newest last) plus the 1-sigma of its
     answers. Rules: max_rules, fewer while samples are few: at most one consequent parameter per 4 samples per
     output (n_rules * (n_in + 1) <= N / 4), so that the fit does not interpolate its samples. 1-sigma: a first
     fit on the oldest (1 - holdout) predicts the newest holdout, and metrics["sigma"] (per output, physical
     units) is zennav.learn.sigma.answer_sigma of those held-out residuals (their RMS inflated for their
-    correlation `answer_lag` rows apart, the spacing of two answers), at least the final fit's training RMSE; metrics["holdout_rmse"] and ["holdout_rho"] keep the
-    parts."""
+    correlation one answer apart: answer_period_s over the held-out rows' spacing in t_ns, sample times [ns];
+    no t_ns: the next row), at least the final fit's training RMSE; metrics["holdout_rmse"] and ["holdout_rho"]
+    keep the parts."""
     x, y = _as_xy(x, y)
     n = int(round(len(x) * (1.0 - holdout)))
     if not 0 < n < len(x):
@@ -360,7 +361,8 @@ def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig()
     n_rules = max(1, min(max_rules, len(x) // (4 * (x.shape[1] + 1))))
     first = fit_anfis(x[:n], y[:n], n_rules=n_rules, config=config, device=device)
     residuals = anfis_numpy.predict(first.arrays, first.norm, x[n:]) - y[n:]
-    sigma, rho = answer_sigma(residuals, lag=answer_lag)
+    lag = 1 if t_ns is None else answer_lag(np.asarray(t_ns)[n:], answer_period_s)
+    sigma, rho = answer_sigma(residuals, lag=lag)
     fit = fit_anfis(x, y, n_rules=n_rules, config=config, device=device)
     fit.metrics["holdout_rmse"] = np.sqrt(np.mean(residuals**2, axis=0)).tolist()
     fit.metrics["holdout_rho"] = rho.tolist()
