@@ -95,9 +95,11 @@ class AnfisCompensator:
 
 class ElmanCompensator:
     """Online Elman network (seed 002) on a sliding window; silent until its training error is acceptable.
-    The input/output normalisation is fixed from the first `window` samples, then learning starts. Like the
-    ANFIS, it answers only features within `max_domain_excess` training standard deviations of the range of
-    the features it has learned from.
+    Learning starts once `min_samples` samples are in, with the input/output normalisation of those; every
+    `min_samples` samples after that the normalisation is refit from the window's samples and the network takes
+    it without changing what it computes (Elman.renormalize), so that the first samples (e.g. the first seconds
+    of one flight) do not fix the scale for good. Like the ANFIS, it answers only features within
+    `max_domain_excess` training standard deviations of the range of the features it has learned from.
 
     Its 1-sigma comes from free-running residuals, as the network is used in an outage: every `free_run_s` of
     sample time a copy of the network is frozen (weights and context) and predicts the following samples,
@@ -105,19 +107,24 @@ class ElmanCompensator:
     ones of the learning network, which keeps adapting) go through answer_sigma."""
 
     def __init__(self, target: str = "body_velocity", n_hidden: int = 12, window: int = 500, threshold: float = 0.8,
-                 seed: int = 0, max_domain_excess: float = 0.5, free_run_s: float = 30.0):
+                 seed: int = 0, max_domain_excess: float = 0.5, free_run_s: float = 30.0, min_samples: int = 200):
         """window: samples in the sliding window (500: about 2 min of the car drive's 4 Hz fixes); threshold:
-        training RMSE (normalised) under which it answers; free_run_s: period of the frozen copies [s]."""
+        training RMSE (normalised) under which it answers; free_run_s: period of the frozen copies [s];
+        min_samples: samples before learning starts, and between two refits of the normalisation."""
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
+        if not 1 <= min_samples <= window:
+            raise ValueError("min_samples must be within 1 .. window")
         self.target, self.n_hidden, self.window, self.threshold, self.seed = target, n_hidden, window, threshold, seed
+        self.min_samples = min_samples
         self.max_domain_excess = max_domain_excess
         self.net: Elman | None = None
         self._first: list[tuple[int, np.ndarray, np.ndarray]] = []
         self._residuals: deque = deque(maxlen=window)  # of the frozen copy
         self._residual_t: deque = deque(maxlen=window)  # their times [ns]
         self.free_run_ns = int(free_run_s * 1e9)
-        self._frozen: tuple[int, dict] | None = None  # (start t_ns, arrays of the frozen copy)
+        self._frozen: tuple[int, dict, dict] | None = None  # (start t_ns, arrays and normalisation of the frozen copy)
+        self._window_xy: deque = deque(maxlen=window)  # the window's samples (physical units), for the normalisation
         self._x_min = self._x_max = None  # range of the learned features
         self.learned = 0
         self.off_domain = 0
@@ -127,13 +134,17 @@ class ElmanCompensator:
         if net.ready:
             net.predict(x)  # the one-step answer (advances the context the window stores, as in service)
             if self._frozen is None or t_ns - self._frozen[0] >= self.free_run_ns:
-                self._frozen = (t_ns, {k: v.copy() for k, v in net.arrays().items()})
-            arrays = self._frozen[1]
-            y_free, arrays["context"] = elman_step(arrays, net.norm(), x, arrays["context"], net.context_gain)
+                self._frozen = (t_ns, {k: v.copy() for k, v in net.arrays().items()}, net.norm())
+            _, arrays, norm = self._frozen
+            y_free, arrays["context"] = elman_step(arrays, norm, x, arrays["context"], net.context_gain)
             self._residuals.append(y_free - y)
             self._residual_t.append(t_ns)
         net.learn(x, y)
+        self._window_xy.append((x, y))
         self.learned += 1
+        if self.learned % self.min_samples == 0:
+            xs, ys = (np.array(v) for v in zip(*self._window_xy))
+            net.renormalize(anfis_numpy.fit_normalization(xs, ys))
         self._x_min = x.copy() if self._x_min is None else np.minimum(self._x_min, x)
         self._x_max = x.copy() if self._x_max is None else np.maximum(self._x_max, x)
 
@@ -146,10 +157,10 @@ class ElmanCompensator:
                 self._learn(s.t_ns, x, y)
                 continue
             self._first.append((s.t_ns, x, y))
-            if len(self._first) == self.window:
+            if len(self._first) == self.min_samples:
                 xs, ys = (np.array(v) for v in list(zip(*self._first))[1:])
                 self.net = Elman(len(FEATURES[self.target]), self.n_hidden, len(OUTPUTS[self.target]),
-                                 window=self.window, threshold=self.threshold,
+                                 window=self.window, min_samples=self.min_samples, threshold=self.threshold,
                                  norm=anfis_numpy.fit_normalization(xs, ys), seed=self.seed)
                 self.net.set_aligned()  # samples only come from a converged filter
                 for ti, xi, yi in self._first:

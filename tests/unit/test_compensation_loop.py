@@ -169,6 +169,28 @@ def test_elman_sigma_is_that_of_the_network_running_free():
     assert np.all(comp.std() > 1.5 * one_step_sigma), (comp.std(), one_step_sigma)
 
 
+def test_elman_starts_after_min_samples_and_its_normalisation_follows_the_window():
+    """Learning starts with the normalisation of the first min_samples samples; every min_samples samples it is
+    refit from the window's samples (here: targets whose level moves, so the first ones would misscale later)."""
+    from zennav.nav.learning import LearnSample
+
+    rng = np.random.default_rng(3)
+    n = 700
+    x = rng.normal(size=(n, len(BODY_FEATURES))) + np.linspace(0.0, 5.0, n)[:, None]
+    y = rng.normal(size=(n, 3)) + np.linspace(0.0, 20.0, n)[:, None]
+    comp = ElmanCompensator("body_velocity", window=300, min_samples=100)
+    comp.add([LearnSample(int(k * 1e9), "body_velocity", x[k], y[k]) for k in range(99)])
+    assert comp.net is None
+    comp.add([LearnSample(int(99e9), "body_velocity", x[99], y[99])])
+    np.testing.assert_allclose(comp.net.y_mean, y[:100].mean(axis=0))
+    comp.add([LearnSample(int(k * 1e9), "body_velocity", x[k], y[k]) for k in range(100, n)])
+    assert comp.learned == n  # the first 100 too, once the network exists; refits at 100, 200, .. 700 learned
+    last = slice(n - 300, n)  # the window at the last refit
+    np.testing.assert_allclose(comp.net.x_mean, x[last].mean(axis=0))
+    np.testing.assert_allclose(comp.net.y_std, y[last].std(axis=0))
+    np.testing.assert_allclose(comp.net.win_y, (y[last] - comp.net.y_mean) / comp.net.y_std, atol=1e-9)
+
+
 def test_body_features_are_the_time_weighted_mean_and_spread_of_the_rates():
     """FeatureWindow.body_features: mean and standard deviation of f_b and omega_ib_b over uneven IMU intervals,
     as numpy's weighted statistics of the per-interval rates; a zero-length interval changes nothing."""

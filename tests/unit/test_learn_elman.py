@@ -82,3 +82,25 @@ def test_state_round_trip_gives_identical_outputs():
     assert np.any(net.win_x != 0.0)
     with pytest.raises(ValueError):
         Elman(3, 5, 1).set_state(net.get_state())
+
+
+def test_renormalize_keeps_what_the_network_computes():
+    """New input/output means and stds: the same outputs for the same inputs and context, and the stored window
+    in the new units (one more learning step from there gives the same result as in the old units only if the
+    window was re-expressed, so it is checked directly)."""
+    rng = np.random.default_rng(5)
+    net = Elman(4, 6, 2, window=50, min_samples=20, threshold=10.0, seed=0)
+    net.set_aligned()
+    xs, ys = rng.normal(1.0, 3.0, (30, 4)), rng.normal(0.0, 1.0, (30, 2))
+    for x, y in zip(xs, ys):
+        net.learn(x, y)
+    state = net.get_state()
+    probe = rng.normal(1.0, 3.0, (5, 4))
+    before = [net.predict(x) for x in probe]
+    net.set_state(state)
+    new = dict(x_mean=np.array([0.5, -1.0, 2.0, 0.0]), x_std=np.array([2.0, 0.5, 4.0, 1.0]),
+               y_mean=np.array([1.0, -1.0]), y_std=np.array([3.0, 0.5]))
+    net.renormalize(new)
+    np.testing.assert_allclose([net.predict(x) for x in probe], before, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(net.win_x, (xs - new["x_mean"]) / new["x_std"], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(net.win_y, (ys - new["y_mean"]) / new["y_std"], rtol=1e-12, atol=1e-12)

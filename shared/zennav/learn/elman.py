@@ -130,6 +130,20 @@ class Elman:
         y, self.context = step(self.arrays(), self.norm(), x, self.context, self.context_gain)
         return y
 
+    def renormalize(self, norm: Mapping[str, np.ndarray]) -> None:
+        """Take new input/output means and stds (physical units) without changing what the network computes:
+        the first layer and the output layer are rescaled and shifted to match, and the stored window is
+        re-expressed in the new units (hidden activations and context are unchanged)."""
+        x_mean, x_std = np.asarray(norm["x_mean"], dtype=float), np.asarray(norm["x_std"], dtype=float)
+        y_mean, y_std = np.asarray(norm["y_mean"], dtype=float), np.asarray(norm["y_std"], dtype=float)
+        self.b1 = self.b1 + self.w1 @ ((x_mean - self.x_mean) / self.x_std)
+        self.w1 = self.w1 * (x_std / self.x_std)[None, :]
+        self.b3 = (self.b3 * self.y_std + self.y_mean - y_mean) / y_std
+        self.w3 = self.w3 * (self.y_std / y_std)[:, None]
+        self.win_x = (self.win_x * self.x_std + self.x_mean - x_mean) / x_std
+        self.win_y = (self.win_y * self.y_std + self.y_mean - y_mean) / y_std
+        self.x_mean, self.x_std, self.y_mean, self.y_std = x_mean, x_std, y_mean, y_std
+
     def arrays(self) -> dict[str, np.ndarray]:
         """Weights and context (ARRAY_NAMES), the live arrays (not copies)."""
         return {k: getattr(self, k) for k in ARRAY_NAMES}
