@@ -255,10 +255,11 @@ def test_elman_trainer_publishes_once_ready_and_the_predictor_runs_the_same_netw
     rng = np.random.default_rng(1)
     xs = rng.normal(size=(700, N_IN))
     ys = np.stack([0.5 * xs[:, 0], -0.3 * xs[:, 1]], axis=1)  # a learnable map
-    for i in range(300):
+    first = node.elman["drift"].min_samples - 1
+    for i in range(first):
         node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
-    assert node.due() == ["drift"] and node.train("drift") is None and not published  # window not full yet
-    for i in range(300, 700):
+    assert node.due() == ["drift"] and node.train("drift") is None and not published  # not learning yet
+    for i in range(first, 700):
         node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
     msg = node.train("drift")
     assert msg is not None and published[-1][0] == "elman-drift" and msg["kind"] == "elman"
