@@ -124,7 +124,6 @@ class ElmanCompensator:
         self._residual_t: deque = deque(maxlen=window)  # their times [ns]
         self.free_run_ns = int(free_run_s * 1e9)
         self._frozen: tuple[int, dict, dict] | None = None  # (start t_ns, arrays and normalisation of the frozen copy)
-        self._window_xy: deque = deque(maxlen=window)  # the window's samples (physical units), for the normalisation
         self._x_min = self._x_max = None  # range of the learned features
         self.learned = 0
         self.off_domain = 0
@@ -140,11 +139,10 @@ class ElmanCompensator:
             self._residuals.append(y_free - y)
             self._residual_t.append(t_ns)
         net.learn(x, y)
-        self._window_xy.append((x, y))
         self.learned += 1
-        if self.learned % self.min_samples == 0:
-            xs, ys = (np.array(v) for v in zip(*self._window_xy))
-            net.renormalize(anfis_numpy.fit_normalization(xs, ys))
+        if self.learned % self.min_samples == 0:  # the window's samples back in physical units
+            net.renormalize(anfis_numpy.fit_normalization(net.win_x * net.x_std + net.x_mean,
+                                                          net.win_y * net.y_std + net.y_mean))
         self._x_min = x.copy() if self._x_min is None else np.minimum(self._x_min, x)
         self._x_max = x.copy() if self._x_max is None else np.maximum(self._x_max, x)
 
