@@ -144,7 +144,7 @@ class _FakeNav:
 
 
 def test_ins_learning_link_matches_answers_to_pending_queries():
-    from zennav.services.ins import LearningLink
+    from zennav.learn.link import LearningLink
 
     sent = []
 
