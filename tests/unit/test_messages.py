@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import random
+from types import SimpleNamespace
 
 import msgpack
 import numpy as np
@@ -39,6 +40,33 @@ def test_key_grammar():
     for bad in ("a/b", "*", "@x", "", "a b"):
         with pytest.raises(ValueError):
             M.Keys(bad)
+
+
+def test_nav_prefix_moves_only_the_ins_outputs():
+    P = M.Keys("car", nav_prefix="plain")
+    assert P.nav_solution() == "zennav/@v1/car/nav/plain/solution"
+    assert P.nav_status() == "zennav/@v1/car/nav/plain/status"
+    assert P.nav_aid("gnss_pos") == "zennav/@v1/car/nav/plain/aid/gnss_pos"
+    assert (P.imu(), P.stream(), P.learn_query()) == (K.imu(), K.stream(), K.learn_query())
+    for key, stream in ((P.nav_solution(), "nav/solution"), (P.nav_status(), "nav/status"),
+                        (P.nav_aid("gnss_pos"), "nav/aid"), (K.nav_aid("status"), "nav/aid")):
+        assert M.stream_of(key).name == stream, key
+    for bad in ("aid", "status", "solution", "a/b"):
+        with pytest.raises(ValueError):
+            M.Keys("car", nav_prefix=bad)
+
+
+def test_aid_report_optional_status_fields():
+    from zennav.nav.navigator import AidReport
+
+    rep = AidReport("gnss_pos", 5, [1.0, 2.0, 3.0], [0.1, 0.2, 0.3], [1.0, 1.0, 1.0], 0.5, True)
+    assert M.validate_map(hdr(M.aid_report_msg(rep)), K.nav_aid("gnss_pos")) == ""
+    rec = SimpleNamespace(**{**vars(rep), "last_fused_t_ns": 5, "faults": ("stale",)})  # a record that has them
+    m = hdr(M.aid_report_msg(rec))
+    assert (m["last_fused_t_ns"], m["faults"]) == (5, ["stale"])
+    assert M.validate_map(M.decode(M.encode(m)), K.nav_aid("gnss_pos")) == ""
+    assert M.validate_map({**m, "faults": ["ok", 3]}, K.nav_aid("gnss_pos")).startswith("bad_type: faults[1]")
+    assert M.validate_map({**m, "last_fused_t_ns": 1.5}, K.nav_aid("gnss_pos")).startswith("bad_type")
 
 
 def test_qos_lossless_streams_and_one_sensor_priority():

@@ -1,0 +1,79 @@
+"""Every message zennav exchanges, by concern: ``keys`` (key grammar, QoS per stream), ``schema`` (the schema
+registry), ``codec`` (msgpack, numpy and dataclass conversions), ``validate`` (the one validator of decoded
+maps: types, shapes, finiteness, time order), ``sensor`` (sensor messages and the cseq ``SequenceMerger``),
+``nav`` (attitude, solution, aid status, ins status), ``learn`` (the learning loop) and ``status`` (service
+heartbeats). ``from zennav import messages as M`` gives every public name as ``M.x``.
+
+No zenoh here (``zennav.bus`` is the only module that imports it): pure Python + msgpack, so the schemas can
+be unit-tested, recorded and replayed without a network.
+
+Wire format: every message is a msgpack map with a header and the schema's fields::
+
+    {"schema": "imu", "v": 1,          # schema name and version (zennav.messages.schema is the registry)
+     "t_ns": int,                       # sample time, integer ns of GPS time (DESIGN.md section 3)
+     "src": str, "seq": int,            # publisher instance id and its per-key sequence number (drop detection)
+     "pub_ns": int,                     # wall-clock publish time [ns since 1970] (latency measurement only)
+     ...fields}
+"""
+from __future__ import annotations
+
+from .codec import ValidationError, dataclass_to_map, decode, encode, floats, make, map_to_dataclass, pyval
+from .keys import (
+    ALIVE,
+    CHUNK,
+    ENCODING,
+    ROOT,
+    STREAM_BY_NAME,
+    STREAMS,
+    Keys,
+    QoS,
+    Stream,
+    check_chunk,
+    qos_of,
+    qos_table,
+    stream_of,
+)
+from .learn import (
+    PARAMSET_FORMAT,
+    array_map,
+    correction_msg,
+    learn_query_msg,
+    learn_sample_msg,
+    map_array,
+    model_params_msg,
+    params_checksum,
+    paramset_of,
+)
+from .nav import ALIGN_STATES, aid_report_msg, check_nav_status, nav_solution_msg
+from .schema import (
+    ANY,
+    BOOL,
+    FLOAT,
+    FLOATS,
+    HEADER,
+    INT,
+    INTS,
+    MAP,
+    OPT,
+    SCHEMAS,
+    SENSOR,
+    STR,
+    STRS,
+    VEC,
+    Schema,
+    define,
+)
+from .sensor import SequenceMerger, check_imu_batch, gnss_fix, gnss_msg, imu_batch_msg, imu_msg, samples
+from .status import SERVICE_STATES, service_status_msg
+from .validate import Validator, check_finite_deep, check_value, validate_map
+
+__all__ = [
+    "ALIGN_STATES", "ALIVE", "ANY", "BOOL", "CHUNK", "ENCODING", "FLOAT", "FLOATS", "HEADER", "INT", "INTS", "MAP",
+    "OPT", "PARAMSET_FORMAT", "QoS", "ROOT", "SCHEMAS", "SENSOR", "SERVICE_STATES", "STR", "STREAMS",
+    "STREAM_BY_NAME", "STRS", "Keys", "Schema", "SequenceMerger", "Stream", "VEC", "ValidationError", "Validator",
+    "aid_report_msg", "array_map", "check_chunk", "check_finite_deep", "check_imu_batch", "check_nav_status",
+    "check_value", "correction_msg", "dataclass_to_map", "decode", "define", "encode", "floats", "gnss_fix",
+    "gnss_msg", "imu_batch_msg", "imu_msg", "learn_query_msg", "learn_sample_msg", "make", "map_array",
+    "map_to_dataclass", "model_params_msg", "nav_solution_msg", "params_checksum", "paramset_of", "pyval",
+    "qos_of", "qos_table", "samples", "service_status_msg", "stream_of", "validate_map",
+]

@@ -1,0 +1,100 @@
+"""Navigation messages (ins and attitude outputs): attitude, nav_solution, aid_report (one aid source's status
+record, on ``nav/aid/<source>``) and nav_status, with their builders."""
+from __future__ import annotations
+
+import math
+
+from .codec import floats, make
+from .keys import CHUNK
+from .schema import BOOL, FLOAT, FLOATS, INT, MAP, OPT, STR, STRS, VEC, define
+
+ALIGN_STATES = ("coarse", "fine", "aligned")
+
+
+def _num(x) -> bool:
+    return type(x) is float or type(x) is int
+
+
+def check_nav_status(msg: dict) -> str:
+    """Structure of nav_status's optional maps (values are already known finite): '' or 'code: detail'.
+    Extra keys inside them are tolerated (forward compatible), the documented ones must have their types."""
+    al = msg.get("alignment")
+    if al is not None:
+        if al.get("state") not in ALIGN_STATES:
+            return f"bad_value: alignment.state {str(al.get('state'))[:40]!r} not in {ALIGN_STATES}"
+        for f in ("method", "tilt_source", "gyrocompass"):
+            if type(al.get(f)) is not str:
+                return f"bad_type: alignment.{f} is {type(al.get(f)).__name__}, want str"
+        hs = al.get("heading_std_rad")
+        if not _num(hs) or hs < 0:
+            return "bad_value: alignment.heading_std_rad must be a number >= 0"
+        times = al.get("times_ns")
+        if type(times) is not dict or not all(k in ALIGN_STATES and type(v) is int for k, v in times.items()):
+            return "bad_value: alignment.times_ns must map alignment states to int t_ns"
+    mn = msg.get("measurement_noise")
+    if mn is not None:
+        for src, e in mn.items():
+            if type(src) is not str or not CHUNK.match(src):
+                return f"bad_value: measurement_noise source {str(src)[:40]!r}"
+            if type(e) is not dict:
+                return f"bad_type: measurement_noise.{src} is {type(e).__name__}, want map"
+            rd = e.get("R_diag")
+            if type(rd) is not list or not 1 <= len(rd) <= 6 or not all(_num(x) and x >= 0 for x in rd):
+                return f"bad_value: measurement_noise.{src}.R_diag must be 1..6 numbers >= 0"
+            ratio = e.get("ratio")
+            if ratio is not None and (type(ratio) is not list or len(ratio) != len(rd)
+                                      or not all(_num(x) and x > 0 for x in ratio)):
+                return f"bad_value: measurement_noise.{src}.ratio must be None or {len(rd)} numbers > 0"
+            if type(e.get("branch")) is not str:
+                return f"bad_type: measurement_noise.{src}.branch must be str"
+            for f in ("k", "inflate", "fading"):
+                if f in e and type(e[f]) is not int:
+                    return f"bad_type: measurement_noise.{src}.{f} must be int"
+    return ""
+
+
+define("attitude", 1, "Attitude filter output: q_nb (scalar first), euler roll/pitch/yaw [rad], gyro_bias [rad/s], "
+       "weight: accelerometer rejection weight in [0, 1]; omega_in_n [rad/s, NED] (optional, added compatibly): "
+       "the earth + transport rate applied to this sample (zeros without an ins solution).",
+       q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), weight=FLOAT, omega_in_n=OPT(VEC(3)))
+define("nav_solution", 1, "Navigation solution of the IMU at t_ns (see zennav.nav.navigator.NavSolution); "
+       "imu_cseq/imu_pub_ns identify the IMU sample that produced it (latency, loss checks).",
+       llh=VEC(3), v_n=VEC(3), q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), accel_bias=VEC(3),
+       std_pos_ned=VEC(3), std_v_n=VEC(3), std_euler=VEC(3), gnss_state=STR, imu_cseq=INT, imu_pub_ns=INT)
+define("aid_report", 1, "One aid source's status record: observation, innovation, innovation variance (diagonal), "
+       "test ratio (None when undefined), fused, reason when rejected; optional (added compatibly): "
+       "last_fused_t_ns the time this source last fused [ns GPS], faults the source's fault flags.",
+       source=STR, observation=FLOATS, innovation=FLOATS, innovation_var=FLOATS, test_ratio=OPT(FLOAT),
+       fused=BOOL, reason=STR, last_fused_t_ns=OPT(INT), faults=OPT(STRS))
+define("nav_status", 1, "ins health: GNSS state, core counters, rejected (bus validator reasons and samples dropped "
+       "as not from the live stream), stream progress (src, done, last_cseq, merge counts), live model. "
+       "Optional (added compatibly, checked strictly when present, see check_nav_status): alignment {state: "
+       "coarse|fine|aligned, method, heading_std_rad, times_ns {state: t_ns}, tilt_source, gyrocompass}; "
+       "adaptive_r: adaptive measurement noise on/off; measurement_noise {source: {R_diag [unit^2], ratio "
+       "(R / reported R, diagonal) or None, branch, k, inflate, fading}}.",
+       check=check_nav_status, gnss_state=STR, counters=MAP, rejected=MAP, imu_count=INT, gnss_count=INT,
+       stream=MAP, model=MAP, alignment=OPT(MAP), adaptive_r=OPT(BOOL), measurement_noise=OPT(MAP))
+
+
+def nav_solution_msg(sol, imu_cseq: int = -1, imu_pub_ns: int = 0) -> dict:
+    """zennav.nav.navigator.NavSolution -> nav_solution message."""
+    return make("nav_solution", sol.t_ns, llh=floats(sol.llh), v_n=floats(sol.v_n), q_nb=floats(sol.q_nb),
+                euler=floats(sol.euler), gyro_bias=floats(sol.gyro_bias), accel_bias=floats(sol.accel_bias),
+                std_pos_ned=floats(sol.std_pos_ned), std_v_n=floats(sol.std_v_n), std_euler=floats(sol.std_euler),
+                gnss_state=str(sol.gnss_state), imu_cseq=int(imu_cseq), imu_pub_ns=int(imu_pub_ns))
+
+
+def aid_report_msg(rep) -> dict:
+    """An aid source's status record (zennav.nav AidReport) -> aid_report message; last_fused_t_ns and faults
+    are copied when the record has them."""
+    tr = float(rep.test_ratio)
+    msg = make("aid_report", rep.t_ns, source=str(rep.source), observation=floats(rep.observation),
+               innovation=floats(rep.innovation), innovation_var=floats(rep.innovation_var),
+               test_ratio=tr if math.isfinite(tr) else None, fused=bool(rep.fused), reason=str(rep.reason))
+    last = getattr(rep, "last_fused_t_ns", None)
+    if last is not None:
+        msg["last_fused_t_ns"] = int(last)
+    faults = getattr(rep, "faults", None)
+    if faults is not None:
+        msg["faults"] = [str(f) for f in faults]
+    return msg
