@@ -33,8 +33,11 @@ define("learn_sample", 1, "Training pair emitted while GNSS is valid: features a
        features=FLOATS, target=FLOATS, variant=STR)
 define("learn_query", 1, "Prediction request of the ins while GNSS is lost (zennav.nav.learning.LearnQuery): "
        "t_ns the query time, target the variant, features as in learn_sample, dt_s the interval of a rate target "
-       "[s]. The query is identified by its header (src, seq); the answer is one correction naming them.",
-       target=STR, features=FLOATS, dt_s=FLOAT)
+       "[s]. The query is identified by its header (src, seq); the answer is one correction naming them. "
+       "n_samples (optional, added compatibly): the number of learn_sample messages of this variant the sender "
+       "published before the query; the answer should come from a model trained through exactly those "
+       "(zennav.learn.learner).",
+       target=STR, features=FLOATS, dt_s=FLOAT, n_samples=OPT(INT))
 define("model_params", 1, "Versioned parameter set: name, version, kind, created_t_ns, normalisation "
        "{key: {shape, data[, dtype]}} (or {key: floats}), arrays {key: {shape, data[, dtype]}}, metrics, checksum. "
        "format (optional) names the parameter-set format; with format 'zennav.paramset/2' (model_params_msg / "
@@ -79,10 +82,10 @@ def learn_sample_msg(sample) -> dict:
                 variant=str(sample.target))
 
 
-def learn_query_msg(query) -> dict:
-    """zennav.nav.learning.LearnQuery -> learn_query message."""
+def learn_query_msg(query, n_samples: int | None = None) -> dict:
+    """zennav.nav.learning.LearnQuery -> learn_query message; n_samples: samples of its variant sent before it."""
     return make("learn_query", query.t_ns, target=str(query.target), features=floats(query.features),
-                dt_s=float(query.dt_s))
+                dt_s=float(query.dt_s), n_samples=None if n_samples is None else int(n_samples))
 
 
 def correction_msg(query: dict, value, std, model: str, version: int) -> dict:
