@@ -10,7 +10,7 @@ Prints one table: the same training set fitted, in one run, by
 with, for each, the wall time and epochs to reach the target training RMSE, whether it reached it, and the
 final training and validation RMSE (normalised, and per output in physical units). Medians over --seeds seeds.
 
-Data. `zennav.compensation.training_set(load_dataset("rtklibexplorer"), --target)`: the learning samples the
+Data. `zennav.learn.loop.training_set(load_dataset("rtklibexplorer"), --target)`: the learning samples the
 navigation engine emits over the whole drive with full GNSS (the target variant's features and outputs: N and
 E, or x, y, z for body_velocity; any variant in zennav.nav.learning.TARGETS). Split in time
 order: the first 70 % of the samples train, the last 30 % validate (no shuffling: validation is the future
@@ -71,7 +71,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from zennav.compensation import training_set
+from zennav.learn.loop import training_set
 from zennav.datasets.registry import load_dataset
 from zennav.learn import anfis_numpy, anfis_torch
 from zennav.learn.anfis_torch import TorchAnfis, TrainConfig

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from zennav.compensation import MODELS, make_compensator, training_set
+from zennav.learn.loop import CHOICES, make_compensator, training_set
 from zennav.datasets.registry import ansfl_specs, load_dataset
 from zennav.metrics import evaluate
 from zennav.nav.learning import TARGETS, LearnSample
@@ -48,7 +48,7 @@ def _row(length: float, label: str, drifts: list[float], base: float | None, ans
 
 def _runs(seeds: list[int]):
     """(model, seed, label) of each row: pure INS once, each learned model once per seed."""
-    for model in MODELS:
+    for model in CHOICES:
         for seed in seeds if model != "none" else [0]:
             yield model, seed, model if len(seeds) == 1 or model == "none" else f"{model} s{seed}"
 

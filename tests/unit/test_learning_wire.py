@@ -81,15 +81,15 @@ def test_predictor_swaps_validated_sets_and_keeps_the_live_one_on_rejection():
     node = PredictorNode(out.append, LOG, bus_reject=lambda k, r: bus_rej.append(r))
     key = K.learn_model("anfis-drift")
     q = dict(M.make("learn_query", 1, target="drift", features=[0.5] * N_IN, dt_s=1.0), src="ins", seq=0)
-    assert node.on_query(q) is None and node.queries["no_model"] == 1
+    assert node.on_query(q)["refused"] == "no_model" and node.core.queries["no_model"] == 1
     v1 = _set(1, seed=1)
     assert node.on_model(key, _wire(M.model_params_msg(v1)), 0)
     assert not node.on_model(key, _wire(M.model_params_msg(v1)), 0)  # the same set again: a duplicate
-    assert node.sets["duplicate"] == 1 and node.sets["rejected"] == 0
+    assert node.core.sets["duplicate"] == 1 and node.core.sets["rejected"] == 0
     for bad in (_set(1, seed=2), _set(2, seed=3, n_in=N_IN - 1), _set(3, seed=4, name="other"),
                 _set(4, seed=5, metrics={"sigma": [0.3, 0.4]})):
         assert not node.on_model(key, _wire(M.model_params_msg(bad)), 0)
-    assert dict(node.rejected) == {"model_stale_version": 1, "model_shape": 1, "model_schema": 2}
+    assert dict(node.core.rejected) == {"model_stale_version": 1, "model_shape": 1, "model_schema": 2}
     assert len(bus_rej) == 4 and node.live["drift"].version == 1
     a = node.on_query(q)
     live = paramset.validate(v1)
@@ -120,9 +120,9 @@ def test_predictor_refuses_queries_outside_the_training_range():
         return node.on_query(dict(M.make("learn_query", 1, target="drift", features=list(map(float, x)), dt_s=1.0),
                                   src="ins", seq=0))
 
-    assert query(inside) is not None and query(edge) is not None
-    assert query(far) is None and query(below) is None
-    assert node.queries["off_domain"] == 2 and node.queries["answered"] == 2 and len(out) == 2
+    assert "refused" not in query(inside) and "refused" not in query(edge)
+    assert query(far)["refused"] == query(below)["refused"] == "off_domain"
+    assert node.core.queries["off_domain"] == 2 and node.core.queries["answered"] == 2 and len(out) == 4
 
 
 class _FakeNav:
@@ -145,6 +145,7 @@ class _FakeNav:
 
 def test_ins_learning_link_matches_answers_to_pending_queries():
     from zennav.learn.link import LearningLink
+    from zennav.messages.learn import refusal_msg
 
     sent = []
 
@@ -154,12 +155,14 @@ def test_ins_learning_link_matches_answers_to_pending_queries():
 
     link = LearningLink(publish, LOG, ("drift",), max_age_s=1.0)
     nav = _FakeNav()
-    nav.samples = [LearnSample(1, "drift", np.zeros(N_IN), np.zeros(2)), LearnSample(1, "position", np.zeros(11), np.zeros(2))]
+    nav.samples = [LearnSample(1, "drift", np.zeros(N_IN), np.zeros(2)), LearnSample(1, "position", np.zeros(11), np.zeros(2)),
+                   LearnSample(2, "drift", np.zeros(N_IN), np.zeros(2))]
     nav.t_ns = 10**9
     nav.queries = [LearnQuery(10**9, "drift", np.zeros(N_IN), 1.0), LearnQuery(10**9, "position", np.zeros(11), 0.5)]
     link.after_imu(nav)
-    assert [k for k, _ in sent] == ["sample", "query"]  # only the configured target
-    q = sent[1][1]
+    assert [k for k, _ in sent] == ["sample", "sample", "query"]  # only the configured target
+    q = sent[2][1]
+    assert q["n_samples"] == 2  # the drift samples sent before it
 
     def answer(query, **kw):
         return {**M.correction_msg(query, [1.0, 2.0], [0.5, 0.5], "anfis-drift", 4), **kw}
@@ -167,7 +170,7 @@ def test_ins_learning_link_matches_answers_to_pending_queries():
     assert link.on_correction(nav, answer(q)) and nav.fused == [(10**9, [1.0, 2.0], [0.5, 0.5])]
     assert not link.on_correction(nav, answer(q))  # answered twice: the second is dropped
     assert not link.on_correction(nav, answer(q, query_src="ins.other"))
-    for t, fused_at, what in ((2 * 10**9, 2 * 10**9, "stale"), (3 * 10**9, -1, "late")):
+    for t, fused_at, what in ((2 * 10**9, 2 * 10**9, "stale"), (3 * 10**9, -1, "late"), (4 * 10**9, -1, "refused")):
         nav.t_ns = t
         nav.queries = [LearnQuery(t, "drift", np.zeros(N_IN), 1.0)]
         link.after_imu(nav)
@@ -175,51 +178,160 @@ def test_ins_learning_link_matches_answers_to_pending_queries():
         nav.last_fused_t_ns = fused_at  # a GNSS fix fused since the query
         if what == "late":
             nav.t_ns = t + 2 * 10**9
-        assert not link.on_correction(nav, answer(qq))
+        assert not link.on_correction(nav, refusal_msg(qq, "off_domain") if what == "refused" else answer(qq))
     nav.queries = [LearnQuery(nav.t_ns, "drift", np.zeros(N_IN), 1.0)]
     link.after_imu(nav)
     nav.t_ns += 5 * 10**9
     link.after_imu(nav)  # never answered: expires
     st = link.status()
-    assert (st["fused"], st["unmatched"], st["stale"], st["late"], st["unanswered"], st["pending"]) == (1, 2, 1, 1, 1, 0)
-    assert (st["model"], st["version"]) == ("anfis-drift", 4)
+    assert (st["fused"], st["unmatched"], st["stale"], st["late"], st["refused_off_domain"], st["unanswered"],
+            st["pending"], st["queries"], st["samples"]) == (1, 2, 1, 1, 1, 1, 0, 5, 2)
+    assert (st["model"], st["version"], st["lockstep"]) == ("anfis-drift", 4, False)
 
 
-def test_trainer_schedule_and_published_set_accepted_by_the_predictor():
+def test_ins_learning_link_in_lockstep_waits_for_the_answer_before_returning():
+    """Lockstep: after_imu returns only once its queries are answered, fused by the answer thread while it waits
+    on the shared lock (held by the caller, as the serial bus's callback lock is); a missing answer times out."""
+    import threading
+
+    from zennav.learn.link import LearningLink
+
+    lock = threading.RLock()
+    sent = []
+
+    def publish(kind, msg):
+        msg.update(src="ins.a", seq=len(sent), pub_ns=0)
+        sent.append((kind, msg))
+        if kind == "query" and len(sent) == 1:
+            def reply():
+                with lock:  # the correction callback runs under the bus's callback lock
+                    link.on_correction(nav, M.correction_msg(msg, [1.0, 2.0], [0.5, 0.5], "anfis-drift", 1))
+            threading.Thread(target=reply).start()
+
+    link = LearningLink(publish, LOG, ("drift",), max_age_s=1.0, lockstep_timeout_s=10.0, lock=lock)
+    nav = _FakeNav()
+    nav.queries = [LearnQuery(0, "drift", np.zeros(N_IN), 1.0)]
+    with lock:  # the sensor callback holds it
+        link.after_imu(nav)
+        assert nav.fused == [(0, [1.0, 2.0], [0.5, 0.5])]  # fused before after_imu returned
+    link.lockstep_timeout_s = 0.05
+    nav.queries = [LearnQuery(0, "drift", np.zeros(N_IN), 1.0)]
+    with lock:
+        link.after_imu(nav)  # nobody answers
+    assert link.counts["lockstep_timeouts"] == 1 and link.status()["pending"] == 1
+
+
+def _samples(n, target="drift", seed=0, t0=0):
+    """Learnable synthetic samples of a target (features, a smooth function of them)."""
+    from zennav.nav.learning import FEATURES, OUTPUTS
+
+    rng = np.random.default_rng(seed)
+    n_in, n_out = len(FEATURES[target]), len(OUTPUTS[target])
+    x = rng.normal(size=(n, n_in))
+    y = np.stack([np.tanh(x[:, k]) + 0.3 * x[:, k + 1] for k in range(n_out)], axis=1) + rng.normal(0, 0.05, (n, n_out))
+    return [LearnSample(t0 + int(i * 25e7), target, x[i], y[i]) for i in range(n)]
+
+
+def test_trainer_schedule_in_sample_counts_and_published_set_accepted_by_the_predictor():
     pytest.importorskip("torch")
+    from zennav.learn.settings import LearnSettings
     from zennav.services.predictor import PredictorNode
     from zennav.services.trainer import TrainerNode
 
     published = []
-    node = TrainerNode(lambda name, msg: published.append((name, msg)), LOG, ("drift",), min_samples=100,
-                       retrain_samples=120, retrain_every_s=0, n_rules=8, max_epochs=3)
-    rng = np.random.default_rng(0)
-    for i in range(119):
-        x = rng.normal(size=N_IN)
-        node.on_sample(M.make("learn_sample", i, features=list(x), target=[x[0], 2 * x[1]], variant="drift"))
+    node = TrainerNode(lambda name, msg: published.append((name, msg)), LOG, ("drift",),
+                       LearnSettings(min_samples=100, retrain_samples=120, max_epochs=3))
+    for s in _samples(99):
+        node.on_sample(M.learn_sample_msg(s))
     node.on_sample(M.make("learn_sample", 0, features=[0.0], target=[0.0, 0.0], variant="drift"))  # bad shape
     node.on_sample(M.make("learn_sample", 0, features=[0.0], target=[0.0], variant="position"))  # not learned
     assert node.due() == [] and node.counts["ignored_shape"] == node.counts["ignored_variant"] == 1
-    node.on_sample(M.make("learn_sample", 200, features=[0.0] * N_IN, target=[0.0, 0.0], variant="drift"))
-    assert node.due() == ["drift"]
+    rest = _samples(150, seed=1, t0=10**12)
+    node.on_sample(M.learn_sample_msg(rest[0]))
+    assert node.due() == ["drift"]  # min_samples held: the first scheduled fit
     node.seen_version("drift", 6)  # a set v6 exists on the bus: continue above it
     msg = node.train("drift")
     assert node.due() == [] and published[0][0] == "anfis-drift" and msg["version"] == 7
-    assert msg["metrics"]["samples"] == 120 and msg["metrics"]["n_rules"] == 2  # 120 // (4 * 14) rules
+    assert msg["metrics"]["samples_seen"] == msg["metrics"]["samples"] == 100 and msg["metrics"]["n_rules"] == 1
+    for s in rest[1:30]:
+        node.on_sample(M.learn_sample_msg(s))
+    q = dict(M.learn_query_msg(LearnQuery(1, "drift", np.zeros(N_IN), 1.0), 125), src="ins", seq=0)
+    node.on_query(q)  # a query through 125 samples: due once those are in (129 are)
+    assert node.due() == ["drift"] and node.train("drift")["metrics"]["samples_seen"] == 125
+    node.on_query(q)  # the latest set is through 125 already
+    assert node.due() == []
+    for s in rest[30:]:
+        node.on_sample(M.learn_sample_msg(s))
+    assert node.train("drift")["metrics"]["samples_seen"] == 220  # scheduled: 100 + 120
     pred = PredictorNode(lambda m: None, LOG)
     assert pred.on_model(K.learn_model("anfis-drift"), _wire(msg), 0) and pred.live["drift"].version == 7
+    c = node.counters()
+    assert (c["sets_drift"], c["through_drift"], c["received_drift"], c["version_drift"]) == (3, 220, 249, 9)
+
+
+@pytest.mark.parametrize("compensation", ["anfis", "anfis-pso", "elman"])
+def test_trainer_and_in_process_loop_make_the_same_sets_and_answers(compensation):
+    """The trainer's node (on its wire messages, a query's n_samples) and the in-process loop (the replay's calls),
+    fed the same samples and queries, fit at the same points and make the same sets, bit for bit (arrays,
+    normalisation, sigma), and the predictor answers as the in-process loop does."""
+    if compensation != "elman":
+        pytest.importorskip("torch")
+    from zennav.learn.loop import make_compensator
+    from zennav.services.predictor import PredictorNode
+    from zennav.services.trainer import TrainerNode
+
+    loop = make_compensator(compensation, "body_velocity", seed=3)
+    settings = loop.settings.with_(min_samples=120, retrain_samples=150, max_epochs=4)
+    if compensation == "elman":
+        settings = settings.with_(window=150, threshold=5.0, free_run_s=10.0)
+    loop = type(loop)("body_velocity", settings)
+    published = []
+    node = TrainerNode(lambda name, msg: published.append(msg), LOG, ("body_velocity",), settings)
+    pred = PredictorNode(lambda m: None, LOG)
+    samples = _samples(400, "body_velocity", seed=4)
+    qx = samples[0].features * 0.5
+    answers_loop, answers_bus = [], []
+    for k, (a, b) in enumerate(((0, 200), (200, 330), (330, 400))):  # an "outage" after each chunk
+        loop.add(samples[a:b])
+        for s in samples[a:b]:
+            node.on_sample(M.learn_sample_msg(s))
+        for t in range(2):  # two queries per outage: the first fits through b, the second reuses that set
+            query = LearnQuery(10**13 + k * 10**10 + t, "body_velocity", qx, 1.0)
+            answers_loop.append(loop.predict(query))
+            q = dict(M.learn_query_msg(query, b), src="ins", seq=2 * k + t)
+            node.on_query(q)
+            while node.due():
+                pm = node.train("body_velocity")
+                if pm is not None:
+                    assert pred.on_model(K.learn_model(pm["name"]), _wire(pm), 0)
+            a_bus = pred.on_query(q)
+            answers_bus.append(None if "refused" in a_bus else (a_bus["value"], a_bus["std"]))
+    live_loop = loop.core.live["body_velocity"]
+    points = [120, 200, 270, 330, 400]  # min_samples, query, min + retrain, query, query
+    assert [m["metrics"]["samples_seen"] for m in published] == points[compensation == "elman":]  # (not ready at 120)
+    assert loop.learner.counts["fit_points"] == node.learners["body_velocity"].counts["fit_points"] == 5
+    assert loop.counts["sets_published"] == len(published) and loop.version == published[-1]["version"]
+    live_bus = pred.live["body_velocity"]
+    for k in ("arrays", "norm"):
+        for name, v in getattr(live_loop, k).items():
+            assert np.array_equal(v, getattr(live_bus, k)[name]), (k, name)
+    assert live_loop.std == live_bus.std  # (the metrics differ: the fit's wall time)
+    assert len(answers_loop) == 6 and all(a is not None for a in answers_loop)
+    for al, ab in zip(answers_loop, answers_bus):
+        assert np.array_equal(al[0], ab[0]) and list(al[1]) == ab[1]
 
 
 def test_body_velocity_sets_have_three_outputs_end_to_end():
     """The 3-output target (forward, right, down body velocity) through trainer, wire and predictor; a set with
     the wrong output count for its target is refused."""
     pytest.importorskip("torch")
+    from zennav.learn.settings import LearnSettings
     from zennav.services.predictor import PredictorNode
     from zennav.services.trainer import TrainerNode
 
     published = []
-    node = TrainerNode(lambda name, msg: published.append(msg), LOG, ("body_velocity",), min_samples=100,
-                       retrain_samples=200, retrain_every_s=0, max_epochs=3)
+    node = TrainerNode(lambda name, msg: published.append(msg), LOG, ("body_velocity",),
+                       LearnSettings(min_samples=200, retrain_samples=200, max_epochs=3))
     rng = np.random.default_rng(2)
     n_in = len(BODY_FEATURES)
     node.on_sample(M.make("learn_sample", 0, features=[0.0] * n_in, target=[0.0, 0.0], variant="body_velocity"))
@@ -239,32 +351,34 @@ def test_body_velocity_sets_have_three_outputs_end_to_end():
     two = _set(msg["version"] + 1, n_in=n_in, name="anfis-body_velocity",
                metrics={"target": "body_velocity", "sigma": [0.3, 0.4]})
     assert not pred.on_model(key, _wire(M.model_params_msg(two)), 0)
-    assert dict(pred.rejected) == {"model_shape": 1} and pred.live["body_velocity"].version == msg["version"]
+    assert dict(pred.core.rejected) == {"model_shape": 1} and pred.live["body_velocity"].version == msg["version"]
 
 
 def test_elman_trainer_publishes_once_ready_and_the_predictor_runs_the_same_network():
-    """--model elman: online learning in arrival order; no set until the network is under its threshold; the
+    """--model elman: online learning in order; no set until the network is under its threshold; the
     predictor's answers are the trainer's network stepped from the published context."""
     from zennav.learn import elman
+    from zennav.learn.settings import LearnSettings
     from zennav.services.predictor import PredictorNode
     from zennav.services.trainer import TrainerNode
 
     published = []
-    node = TrainerNode(lambda name, msg: published.append((name, msg)), LOG, ("drift",), model="elman",
-                       min_samples=50, retrain_samples=50, retrain_every_s=0)
+    node = TrainerNode(lambda name, msg: published.append((name, msg)), LOG, ("drift",),
+                       LearnSettings(model="elman", min_samples=50, retrain_samples=50))
     rng = np.random.default_rng(1)
     xs = rng.normal(size=(700, N_IN))
     ys = np.stack([0.5 * xs[:, 0], -0.3 * xs[:, 1]], axis=1)  # a learnable map
-    first = node.elman["drift"].min_samples - 1
-    for i in range(first):
+    for i in range(50):
         node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
-    assert node.due() == ["drift"] and node.train("drift") is None and not published  # not learning yet
-    for i in range(first, 700):
+    assert node.due() == ["drift"] and node.train("drift") is None and not published  # learning, not ready yet
+    assert node.counters()["elman_not_ready_drift"] == 1
+    for i in range(50, 700):
         node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
-    msg = node.train("drift")
-    assert msg is not None and published[-1][0] == "elman-drift" and msg["kind"] == "elman"
-    assert msg["metrics"]["samples"] == 700
-    comp = node.elman["drift"]
+    while node.due():
+        msg = node.train("drift") or msg
+    assert published[-1][0] == "elman-drift" and msg["kind"] == "elman"
+    assert msg["metrics"]["samples_seen"] == msg["metrics"]["samples"] == 700
+    comp = node.learners["drift"].elman
     pred = PredictorNode(lambda m: None, LOG)
     assert pred.on_model(K.learn_model("elman-drift"), _wire(msg), 0)
     ctx, gain = comp.net.context.copy(), comp.net.context_gain

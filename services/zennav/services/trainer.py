@@ -1,106 +1,102 @@
-"""trainer service (issue 6, DESIGN.md sections 5 and 6): collects the ins's training samples per target variant,
-learns the INS error and publishes versioned parameter sets. --model anfis (default): retrains ANFIS by the
-hybrid learner (least squares for the consequents + Fletcher-Reeves CG for the premises,
-zennav.learn.anfis_torch.fit_anfis_sigma) on the newest samples. --model elman (seed 002): an Elman network learns
-online from every sample, in arrival order, on its sliding window (zennav.compensation.ElmanCompensator, the
-same object the in-process replay uses); on the schedule below its weights and context are published, once its
-training error is under its threshold (before that nothing is published, as the seed's network does not
-predict). The only zennav process that imports torch; ANFIS trains on the GPU when torch sees one.
+"""trainer service (issue 6, DESIGN.md sections 5 and 6): the learner of the learning loop on the bus. It collects
+the ins's training samples per target variant, fits on the schedule of zennav.learn.learner (the same Learner, with
+the same LearnSettings defaults, that the in-process loop of `zennav replay --compensation` runs) and publishes
+versioned parameter sets. --model anfis (default): ANFIS on the newest --window samples, premises by hybrid LSE +
+Fletcher-Reeves CG (--optimizer cg, seed 000) or particle swarm (--optimizer pso, seed 003). --model elman (seed
+002): an Elman network learns online from every sample, in order; its state is published once its training error
+is under its threshold. The only zennav process that imports torch; ANFIS trains on the GPU when torch sees one
+(--device cpu and --torch-threads 1 for sets equal, bit for bit, to the in-process loop's).
 
 Wiring table
-    subscribes <base>/learn/samples        learn_sample from the ins (variants outside --targets are counted, ignored)
+    subscribes <base>/learn/samples        learn_sample from the ins (variants outside --targets, and samples of the
+                                           wrong size, are counted and ignored)
+               <base>/learn/query          learn_query from the ins: its n_samples asks for a set trained through
+                                           exactly that many samples of its variant (queries without it are counted)
     publishes  <base>/learn/model/<name>   model_params, the wire form of a zennav.learn.paramset set (name
                                            <prefix>-<target>, e.g. anfis-drift; the latest is served to late
                                            joiners by the publisher's queryable)
-               <base>/svc/trainer/status   samples per target, trainings, versions, link losses, device
+               <base>/svc/trainer/status   per target: samples, sets published and their last version, the last fit
+                                           point, fit points without a set (elman not ready, fit errors), requests;
+                                           link losses, device
 
-ANFIS rule count: --n-rules, reduced while samples are few (anfis_torch.fit_anfis_sigma).
+Schedule, in data terms only (zennav.learn.learner): a fit at --min-samples samples, then every --retrain-samples
+samples, and at every query's n_samples above the last fit point, in increasing order, each on exactly the first
+n samples (the newest --window of them). Fits run on their own thread, so samples keep arriving meanwhile; a fit
+waits until its n samples are in (samples and queries travel on different keys). Each set's metrics carry
+samples_seen (n), the target, the method, epochs, the training RMSE, sigma (the predictor's 1-sigma per output).
 
-Schedule: per target, the newest --window samples are kept; a training starts when at least --min-samples are
-held and either --retrain-samples new ones arrived or --retrain-every seconds passed since the last training
-with new samples. Training runs on its own thread, so samples keep arriving meanwhile. The set's metrics carry
-the target, the sample count and time span, the device, epochs, wall time, the training RMSE per output and
-sigma, the predictor's 1-sigma per output (zennav.compensation: out-of-sample residuals inflated for their
-correlation; ANFIS on the newest quarter of the samples of a fit on the rest, Elman running free).
-
-Versions: one integer per model name, +1 per training. At start the trainer asks for the latest set of each of
-its names on the bus and continues above it (else from --first-version), so a restarted trainer's sets are
-newer than those a predictor may still hold, as long as some process still serves them.
+Versions: one integer per model name, +1 per set. At start the trainer asks for the latest set of each of its
+names on the bus and continues above it (else from --first-version), so a restarted trainer's sets are newer than
+those a predictor may still hold, as long as some process still serves them.
 
 Remote deployment: run it as a zenoh client of the edge router (``--mode client --connect tcp/<edge>:7447``,
 deploy/zenoh-client.json5: waits for the router, reconnects for ever). When the link drops the trainer keeps
 running and keeps its samples (none arrive meanwhile); the edge keeps predicting with the last set. On
 reconnection (seen as the router reappearing in the session's info) it re-publishes its latest set of each
-model, so a set trained during the cut is not lost; the next training then follows the schedule.
+model, so a set trained during the cut is not lost; the next fit then follows the schedule.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import threading
-import time
-from collections import Counter, deque
-
-import numpy as np
+from collections import Counter
 
 from zennav import messages as M
-from zennav.compensation import ElmanCompensator
-from zennav.learn import paramset
-from zennav.nav.learning import ANSWER_PERIOD_S, FEATURES, OUTPUTS, TARGETS, LearnSample
-
-MODELS = ("anfis", "elman")
+from zennav.learn.learner import Learner
+from zennav.learn.settings import MODELS, OPTIMIZERS, LearnSettings
+from zennav.nav.learning import FEATURES, OUTPUTS, TARGETS
 from zennav.service import ServiceRunner, add_bus_args
+
+DEFAULTS = LearnSettings()
 
 
 class TrainerNode:
-    """The transport-free part of the trainer: ``on_sample(msg)`` from the bus thread, ``train_due()`` /
-    ``train(target)`` from the training thread; ``publish(name, msg)`` sends a model_params message."""
+    """The transport-free part of the trainer: ``on_sample(msg)`` and ``on_query(msg)`` from the bus threads,
+    ``wait_due()`` / ``train(target)`` from the training thread; ``publish(name, msg)`` sends a model_params
+    message."""
 
-    def __init__(self, publish, log, targets=("body_velocity",), *, model: str = "anfis", prefix: str | None = None,
-                 window: int = 5000, min_samples: int = 200, retrain_samples: int = 500,
-                 retrain_every_s: float = 60.0, n_rules: int = 8, max_epochs: int = 30, seed: int = 0, device=None,
-                 first_version: int = 1):
-        if model not in MODELS:
-            raise ValueError(f"model must be one of {MODELS}")
+    def __init__(self, publish, log, targets=("body_velocity",), settings: LearnSettings = DEFAULTS, *,
+                 prefix: str | None = None, device=None, first_version: int = 1):
         self.publish = publish
         self.log = log
-        self.model = model
+        self.settings = settings
         self.targets = tuple(targets)
-        prefix = prefix or model
-        self.names = {t: M.check_chunk(f"{prefix}-{t}", "model name") for t in self.targets}
-        self.window, self.min_samples = int(window), int(min_samples)
-        self.retrain_samples, self.retrain_every_s = int(retrain_samples), float(retrain_every_s)
-        self.n_rules, self.max_epochs, self.seed = int(n_rules), int(max_epochs), int(seed)
+        prefix = prefix or settings.model
+        self.learners = {t: Learner(t, settings, name=M.check_chunk(f"{prefix}-{t}", "model name"), device=device)
+                         for t in self.targets}
+        self.names = {t: lr.name for t, lr in self.learners.items()}
         self.device = device
         self.cv = threading.Condition()
-        self.data = {t: deque(maxlen=self.window) for t in self.targets}  # (t_ns, features, value)
-        self.unlearned = {t: [] for t in self.targets}  # elman: samples not yet learned, in arrival order
-        self.elman = {t: ElmanCompensator(t, seed=seed) for t in self.targets} if model == "elman" else {}
-        self.new = {t: 0 for t in self.targets}
-        self.last_train = {t: time.monotonic() for t in self.targets}
         self.version = {t: int(first_version) - 1 for t in self.targets}
         self.counts: Counter[str] = Counter()
-        self.last = {}  # target -> metrics of the last training
         self.busy = ""
 
-    # ------------------------------------------------------------------ samples
+    # ------------------------------------------------------------------ input
     def on_sample(self, msg: dict) -> None:
         t = msg["variant"]
-        if t not in self.data:
+        if t not in self.learners:
             self.counts["ignored_variant"] += 1
             return
         if len(msg["features"]) != len(FEATURES[t]) or len(msg["target"]) != len(OUTPUTS[t]):
             self.counts["ignored_shape"] += 1
             return
+        self.learners[t].add(msg["t_ns"], msg["features"], msg["target"])
+        self.counts[f"samples_{t}"] += 1
         with self.cv:
-            self.data[t].append((msg["t_ns"], msg["features"], msg["target"]))
-            if self.elman:
-                self.unlearned[t].append(LearnSample(msg["t_ns"], t, np.asarray(msg["features"], dtype=float),
-                                                     np.asarray(msg["target"], dtype=float)))
-            self.new[t] += 1
-            self.counts[f"samples_{t}"] += 1
-            if self.new[t] >= self.retrain_samples:
-                self.cv.notify()
+            self.cv.notify()
+
+    def on_query(self, msg: dict) -> None:
+        """A learn_query: its n_samples asks for a set through exactly that many samples of its variant."""
+        t, n = msg["target"], msg.get("n_samples")
+        if t not in self.learners:
+            return
+        if n is None:
+            self.counts["queries_without_count"] += 1
+            return
+        self.learners[t].request(int(n))
+        with self.cv:
+            self.cv.notify()
 
     def seen_version(self, target: str, version: int) -> None:
         """A set of this model already exists on the bus with this version: continue above it."""
@@ -108,18 +104,11 @@ class TrainerNode:
             self.version[target] = max(self.version[target], int(version))
 
     # ------------------------------------------------------------------ schedule
-    def due(self, now: float | None = None) -> list[str]:
-        now = time.monotonic() if now is None else now
-        out = []
-        for t in self.targets:
-            n, held = self.new[t], len(self.data[t])
-            if n > 0 and held >= self.min_samples and (
-                    n >= self.retrain_samples or (self.retrain_every_s > 0 and now - self.last_train[t] >= self.retrain_every_s)):
-                out.append(t)
-        return out
+    def due(self) -> list[str]:
+        return [t for t, lr in self.learners.items() if lr.due() is not None]
 
     def wait_due(self, tick: float = 0.5) -> list[str]:
-        """The targets due for training, after waiting up to tick seconds for one (the caller loops)."""
+        """The targets with a fit due, after waiting up to tick seconds for one (the caller loops)."""
         with self.cv:
             due = self.due()
             if not due:
@@ -128,117 +117,69 @@ class TrainerNode:
         return due
 
     def train(self, target: str) -> dict | None:
-        """Train the target's model on what arrived and publish its set; returns the published message (None
-        when nothing was published)."""
-        return self._learn_elman(target) if self.elman else self._fit_anfis(target)
-
-    def _next_version(self, target: str) -> int:
+        """Fit the target's next due point and publish its set; returns the model_params message published
+        (None: nothing due, or no set at that point, counted by the learner)."""
+        lr = self.learners[target]
+        n = lr.due()
+        if n is None:
+            return None
         with self.cv:
-            self.version[target] += 1
-            return self.version[target]
-
-    def _learn_elman(self, target: str) -> dict | None:
-        """Online learning of the new samples, then the network's weights and context as a set when it is ready."""
-        with self.cv:
-            rows, self.unlearned[target] = self.unlearned[target], []
-            self.new[target] = 0
-            self.last_train[target] = time.monotonic()
-        comp = self.elman[target]
-        self.busy = f"learning {target} online from {len(rows)} samples"
+            version = self.version[target] + 1
+        self.busy = f"fitting {target} through {n} samples"
         try:
-            comp.add(rows)
+            ps = lr.fit(n, version)
         finally:
             self.busy = ""
-        if not comp.ready:
-            self.counts[f"not_ready_{target}"] += 1
+        if ps is None:
+            self.log.warning("no %s set through %d samples (%s)", lr.name, n, lr.last_error or "model not ready")
             return None
-        std = comp.std()
-        version = self._next_version(target)
-        net = comp.net
-        metrics = {"target": target, "method": "elman_online", "sigma": std.tolist(), "samples": comp.learned,
-                   "window": net.window, "n_hidden": net.n_hidden, "context_gain": float(net.context_gain),
-                   "window_rmse_normalised": float(net.train_rmse), "t_last_ns": int(rows[-1].t_ns) if rows else 0}
-        arrays = {k: v.copy() for k, v in net.arrays().items()}
-        name = self.names[target]
-        msg = M.model_params_msg(paramset.build(name, version, arrays, comp.norm(), metrics, kind="elman"))
-        self.publish(name, msg)
-        self.counts[f"trainings_{target}"] += 1
-        self.last[target] = {"version": version, "samples": comp.learned, "sigma": [round(v, 4) for v in std]}
-        self.log.info("published %s v%d: learned %d samples online, 1-sigma %s", name, version,
-                      comp.learned, self.last[target]["sigma"])
-        return msg
-
-    def _fit_anfis(self, target: str) -> dict | None:
-        """Fit ANFIS on a snapshot of the target's window and publish the set."""
-        from zennav.learn.anfis_torch import TrainConfig, fit_anfis_sigma
-
         with self.cv:
-            rows = list(self.data[target])
-            self.new[target] = 0
-            self.last_train[target] = time.monotonic()
-        t_ns = np.array([r[0] for r in rows], dtype=np.int64)
-        x = np.array([r[1] for r in rows], dtype=float)
-        y = np.array([r[2] for r in rows], dtype=float)
-        self.busy = f"training {target} on {len(rows)} samples"
-        try:
-            fit = fit_anfis_sigma(x, y, max_rules=self.n_rules, device=self.device, t_ns=t_ns,
-                                  answer_period_s=ANSWER_PERIOD_S[target], config=TrainConfig(
-                                      method="hybrid_cg", max_epochs=self.max_epochs, seed=self.seed))
-        except Exception:
-            self.counts["train_errors"] += 1
-            self.log.exception("training %s on %d samples failed; the last set stays published", target, len(x))
-            return None
-        finally:
-            self.busy = ""
-        version = self._next_version(target)
-        metrics = {**fit.metrics, "target": target, "samples": int(len(x)), "t_first_ns": int(t_ns.min()),
-                   "t_last_ns": int(t_ns.max()), "device": str(self.device or "cpu"), "n_rules": int(len(fit.arrays["rules"]))}
-        name = self.names[target]
-        msg = M.model_params_msg(paramset.build(name, version, fit.arrays, fit.norm, metrics))
-        self.publish(name, msg)
-        self.counts[f"trainings_{target}"] += 1
-        self.last[target] = {"version": version, "samples": len(x), "epochs": fit.metrics["epochs"],
-                             "wall_s": round(fit.metrics["wall_s"], 3),
-                             "sigma": [round(v, 4) for v in fit.metrics["sigma"]]}
-        self.log.info("published %s v%d: %d samples, %d epochs (%s) in %.2f s on %s, 1-sigma %s", name, version,
-                      len(x), fit.metrics["epochs"], fit.metrics["stop_reason"], fit.metrics["wall_s"],
-                      self.device or "cpu", self.last[target]["sigma"])
+            self.version[target] = max(self.version[target], version)
+        msg = M.model_params_msg(ps)
+        self.publish(lr.name, msg)
+        m = ps["metrics"]
+        self.log.info("published %s v%d through %d samples (%d used, %s), 1-sigma %s", lr.name, version, n,
+                      m["samples"], m["method"], lr.last["sigma"])
         return msg
 
     # ------------------------------------------------------------------ status
     def counters(self) -> dict:
-        with self.cv:
-            c = dict(self.counts)
-            c.update({f"held_{t}": len(d) for t, d in self.data.items()})
-            c.update({f"version_{t}": v for t, v in self.version.items()})
+        c = dict(self.counts)
+        for t, lr in self.learners.items():
+            c.update({f"{k}_{t}": v for k, v in dict(lr.counts).items()})
+            c.update({f"version_{t}": self.version[t], f"through_{t}": lr.through, f"received_{t}": lr.received})
         return c
 
     def detail(self) -> str:
-        last = dict(self.last)
-        s = "; ".join(f"{self.names[t]} v{m['version']} ({m['samples']} samples, 1-sigma {m['sigma']})"
-                      for t, m in sorted(last.items())) or "no set published yet"
-        return f"{s}; device {self.device or 'cpu'}" + (f"; {self.busy}" if self.busy else "")
+        s = "; ".join(f"{lr.name} v{lr.last['version']} (through {lr.last['samples_seen']} samples, 1-sigma "
+                      f"{lr.last['sigma']})" for lr in self.learners.values() if lr.last) or "no set published yet"
+        return f"{s}; {self.settings.label}, device {self.device or 'cpu'}" + (f"; {self.busy}" if self.busy else "")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS (hybrid "
-                                "LSE + Fletcher-Reeves CG) or online Elman on the ins's samples, versioned parameter sets")
-    p.add_argument("--model", default="anfis", choices=MODELS, help="anfis: retrained on the newest samples; "
+    d = DEFAULTS
+    p = argparse.ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS (premises by "
+                                "hybrid LSE + Fletcher-Reeves CG or PSO) or online Elman on the ins's samples, "
+                                "versioned parameter sets; defaults: zennav.learn.settings.LearnSettings")
+    p.add_argument("--model", default=d.model, choices=MODELS, help="anfis: fitted on the newest samples; "
                    "elman: learns online from every sample (seed 002)")
+    p.add_argument("--optimizer", default=d.optimizer, choices=OPTIMIZERS,
+                   help="anfis premises: cg (hybrid LSE + Fletcher-Reeves CG, seed 000) or pso (seed 003)")
     p.add_argument("--targets", default="body_velocity", help=f"comma-separated target variants to learn ({', '.join(TARGETS)})")
     p.add_argument("--prefix", default=None, help="model name prefix (default: --model): sets are published as "
                    "<prefix>-<target>")
-    p.add_argument("--window", type=int, default=5000, help="newest samples kept per target")
-    p.add_argument("--min-samples", type=int, default=200, help="no training below this many samples")
-    p.add_argument("--retrain-samples", type=int, default=500, help="retrain after this many new samples")
-    p.add_argument("--retrain-every", type=float, default=60.0,
-                   help="... or after this many seconds if any new sample arrived (0: sample count only)")
-    p.add_argument("--n-rules", type=int, default=8, help="ANFIS rules (k-means rule base)")
-    p.add_argument("--max-epochs", type=int, default=30, help="hybrid epochs (LSE + FR-CG) per training")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--window", type=int, default=None, help="anfis: newest samples a fit uses; elman: its sliding "
+                   "window (default: the model's, zennav.learn.settings.WINDOW)")
+    p.add_argument("--min-samples", type=int, default=None, help="no set below this many samples (default: the "
+                   "model's, zennav.learn.settings.MIN_SAMPLES)")
+    p.add_argument("--retrain-samples", type=int, default=d.retrain_samples, help="a scheduled fit every this many samples")
+    p.add_argument("--n-rules", type=int, default=d.n_rules, help="ANFIS rules (k-means rule base)")
+    p.add_argument("--max-epochs", type=int, default=d.max_epochs, help="ANFIS epochs per fit (LSE + FR-CG, or swarm "
+                   "iterations)")
+    p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--device", default=None, help="torch device (default: cuda when torch sees one, else cpu)")
-    p.add_argument("--torch-threads", type=int, default=0,
-                   help="torch CPU threads (0: torch's default); 1 beside the real-time services on one host")
+    p.add_argument("--torch-threads", type=int, default=d.torch_threads,
+                   help="torch CPU threads during a fit (1: the in-process loop's sets, bit for bit; 0: torch's default)")
     p.add_argument("--first-version", type=int, default=1, help="version of the first set if none is found on the bus")
     p.add_argument("--link-poll", type=float, default=0.5, help="period [s] of the link (router/peer) check")
     p.add_argument("--close-timeout", type=float, default=3.0, help="longest wait [s] for the session to close")
@@ -250,13 +191,16 @@ def main(argv=None) -> int:
     targets = [t.strip() for t in args.targets.split(",") if t.strip()]
     if not targets or not set(targets) <= set(TARGETS):
         raise SystemExit(f"--targets: choose from {TARGETS}")
+    try:
+        settings = LearnSettings(model=args.model, optimizer=args.optimizer, window=args.window,
+                                 min_samples=args.min_samples, retrain_samples=args.retrain_samples,
+                                 n_rules=args.n_rules, max_epochs=args.max_epochs, seed=args.seed,
+                                 torch_threads=args.torch_threads)
+    except ValueError as e:
+        raise SystemExit(f"zennav-trainer: {e}") from None
     run = ServiceRunner("trainer", args, serial=False)
     from zennav.learn.anfis_torch import default_device  # torch: this process only
 
-    if args.torch_threads > 0:
-        import torch
-
-        torch.set_num_threads(args.torch_threads)
     device = args.device or str(default_device())
     k = run.keys
     bus = run.bus
@@ -270,10 +214,8 @@ def main(argv=None) -> int:
                 p = pubs[name] = bus.publisher(k.learn_model(name))
             p.put(msg)
 
-    node = TrainerNode(publish, run.log, targets, model=args.model, prefix=args.prefix, window=args.window,
-                       min_samples=args.min_samples, retrain_samples=args.retrain_samples,
-                       retrain_every_s=args.retrain_every, n_rules=args.n_rules, max_epochs=args.max_epochs,
-                       seed=args.seed, device=device, first_version=args.first_version)
+    node = TrainerNode(publish, run.log, targets, settings, prefix=args.prefix, device=device,
+                       first_version=args.first_version)
     for t, name in node.names.items():  # continue the version numbering of a set already on the bus
         for _key, msg in bus.get_latest(k.learn_model(name), timeout=2.0):
             if msg["name"] == name:
@@ -282,6 +224,8 @@ def main(argv=None) -> int:
     run.counters = lambda: {**node.counters(), "link_losses": link["losses"], "republished": link["republished"]}
     bus.subscribe(k.learn_samples(), lambda key, msg, recv_ns: node.on_sample(msg), channel="fifo", capacity=8192,
                   name="samples")
+    bus.subscribe(k.learn_query(), lambda key, msg, recv_ns: node.on_query(msg), channel="fifo", capacity=8192,
+                  name="query")
 
     def connected() -> bool:
         return bool(bus.routers() or bus.peers())
@@ -294,8 +238,8 @@ def main(argv=None) -> int:
             link["up"] = up
             if not up:
                 link["losses"] += 1
-                run.log.warning("link to the router lost; training goes on with the %s samples held",
-                                sum(len(d) for d in node.data.values()))
+                run.log.warning("link to the router lost; training goes on with the %s samples received",
+                                sum(lr.received for lr in node.learners.values()))
                 continue
             with pub_lock:
                 for p in pubs.values():

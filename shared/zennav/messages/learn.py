@@ -47,8 +47,10 @@ define("model_params", 1, "Versioned parameter set: name, version, kind, created
        metrics=MAP, checksum=STR, format=OPT(STR))
 define("correction", 1, "Predicted INS error: kind (the learn_query target, or e.g. 'pos_ned' [m]), value, 1-sigma "
        "std, model name and version used; t_ns the time of the query answered; query_src/query_seq (optional) "
-       "the header of the learn_query answered.",
-       kind=STR, value=FLOATS, std=FLOATS, model=STR, version=INT, query_src=OPT(STR), query_seq=OPT(INT))
+       "the header of the learn_query answered. refused (optional, added compatibly): the predictor's reason for "
+       "not answering the query (no_model, off_domain, ...; value and std empty, model '', version -1).",
+       kind=STR, value=FLOATS, std=FLOATS, model=STR, version=INT, query_src=OPT(STR), query_seq=OPT(INT),
+       refused=OPT(STR))
 
 
 def params_checksum(msg: dict) -> str:
@@ -92,6 +94,12 @@ def correction_msg(query: dict, value, std, model: str, version: int) -> dict:
     """The answer to a (published, so src/seq-stamped) learn_query message."""
     return make("correction", query["t_ns"], kind=query["target"], value=floats(value), std=floats(std),
                 model=str(model), version=int(version), query_src=query["src"], query_seq=int(query["seq"]))
+
+
+def refusal_msg(query: dict, reason: str) -> dict:
+    """The predictor's refusal of a (published) learn_query message: a correction without a value."""
+    return make("correction", query["t_ns"], kind=query["target"], value=[], std=[], model="", version=-1,
+                query_src=query["src"], query_seq=int(query["seq"]), refused=str(reason))
 
 
 def model_params_msg(ps: dict) -> dict:

@@ -1,0 +1,99 @@
+"""The learning loop in one process (DESIGN.md section 5 without transport): the trainer's Learner and the
+predictor's PredictorCore wired directly, with the same settings (LearnSettings), the same fit points and the same
+answers as trainer + predictor over the bus in lockstep. What ``zennav replay --compensation`` and the demo use.
+
+The replay hands over the engine's samples (``add``) and queries (``predict`` -> (value, 1-sigma) or None). A query
+carries the count n of its target's samples so far: the learner fits through n if no set is through n yet (the
+first query of an outage, so the model includes the newest data), the core swaps the set in and answers with it.
+Scheduled fits (every retrain_samples samples) happen as the samples arrive, as in the trainer.
+"""
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from .learner import Learner
+from .predictor_core import PredictorCore
+from .settings import COMPENSATIONS, LearnSettings, compensation_settings
+from ..nav.learning import TARGETS, LearnQuery, LearnSample
+
+CHOICES = ("none", *COMPENSATIONS)  # `zennav replay --compensation`
+
+
+class InProcessLoop:
+    """Learner + PredictorCore of one target variant (module docstring); counts as the services do."""
+
+    def __init__(self, target: str = "body_velocity", settings: LearnSettings = LearnSettings()):
+        self.target, self.settings = target, settings
+        self.learner = Learner(target, settings)
+        self.core = PredictorCore(settings.max_domain_excess)
+        self.version = 0
+        self.counts: Counter[str] = Counter()  # queries, fused answers are the engine's
+
+    def _fit_due(self) -> None:
+        while (n := self.learner.due()) is not None:
+            msg = self.learner.fit(n, self.version + 1)
+            if msg is None:
+                continue
+            self.version += 1
+            self.counts["sets_published"] += 1
+            if self.core.offer(msg["name"], msg)[0] is not None:
+                self.counts["sets_swapped"] += 1
+
+    def add(self, samples: list[LearnSample]) -> None:
+        """The engine's new training samples (other targets are ignored)."""
+        for s in samples:
+            if s.target == self.target:
+                self.learner.add(s.t_ns, s.features, s.value)
+        self._fit_due()
+
+    def predict(self, query: LearnQuery) -> tuple[np.ndarray, tuple] | None:
+        """The answer (value, 1-sigma per output) to a query, through the model trained through every sample so
+        far; None when refused (counted by reason in core.queries)."""
+        if query.target != self.target:
+            return None
+        self.counts["queries"] += 1
+        self.learner.request(self.learner.received)
+        self._fit_due()
+        out = self.core.answer(query.target, query.features, self.learner.received)
+        return None if isinstance(out, str) else out[:2]
+
+    def status(self) -> dict[str, int]:
+        """The services' counters: the trainer's (sets, fit points, not ready, errors), the predictor's (sets
+        accepted / rejected, queries answered / refused per reason / late, live version) and the queries sent."""
+        return {**dict(self.counts), **{f"learner_{k}": v for k, v in self.learner.counts.items()},
+                **self.core.counters()}
+
+
+def make_compensator(compensation: str, target: str = "body_velocity", seed: int = 0) -> InProcessLoop | None:
+    """'none' -> None; 'anfis' (CG), 'anfis-pso' or 'elman' -> the in-process loop with the default settings."""
+    if compensation == "none":
+        return None
+    if target not in TARGETS:
+        raise ValueError(f"target must be one of {TARGETS}")
+    return InProcessLoop(target, compensation_settings(compensation, seed))
+
+
+def training_set(ds, target: str = "body_velocity", navigator=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Features (N, n_features), targets (N, n_outputs) and times t_ns (N,) of the learning samples of one target
+    variant that the engine emits over the whole of ds with full GNSS (the set the trainer would see).
+    navigator: the engine to run (its config must have learning on); default: ds's config with learning."""
+    from ..nav.navigator import Navigator
+    from ..replay import run_replay
+
+    if target not in TARGETS:
+        raise ValueError(f"target must be one of {TARGETS}")
+    collected: list[LearnSample] = []
+
+    class _Collector:
+        def add(self, samples):
+            collected.extend(s for s in samples if s.target == target)
+
+        def predict(self, query):
+            return None
+
+    nav = navigator or Navigator(ds.config.with_(learning=True), ds.initial)
+    run_replay(ds, navigator=nav, compensator=_Collector())
+    return (np.array([s.features for s in collected]), np.array([s.value for s in collected]),
+            np.array([s.t_ns for s in collected], dtype=np.int64))
