@@ -326,7 +326,7 @@ def write_plots(out: Path, ds, runs: dict[str, ReplayResult]) -> list[Path]:
 
 def run_demo(out: Path, duration_s: float, outage: tuple[float, float], launch_file: Path = DEMO_LAUNCH) -> None:
     """Everything `zennav demo` does (see the module docstring); raises click.ClickException on failure."""
-    from .compensation import make_compensator
+    from .learn.loop import make_compensator
     from .datasets.registry import load_dataset
 
     wall0 = time.monotonic()
