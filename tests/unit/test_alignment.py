@@ -174,7 +174,7 @@ def test_attitude_source_sets_tilt_only_while_coarse():
     assert nav.on_attitude(0, 0.02, -0.01, math.radians(0.2))
     np.testing.assert_allclose(nav.solution().euler[:2], [0.02, -0.01])
     assert nav.status()["alignment"]["tilt_source"] == "attitude_source"
-    nav._coarse = False  # as after alignment
+    nav.alignment.coarse = False  # as after alignment
     assert not nav.on_attitude(0, 0.0, 0.0, math.radians(0.1))
 
 

@@ -91,6 +91,16 @@ class AdaptiveR:
         self.R = 0.5 * (R + R.T)
         return self.R
 
+    def get_state(self) -> dict:
+        """The estimator's evolving state (plain, msgpack-safe); the settings come from the constructor."""
+        return {"k": int(self.k), "scale": self.scale.tolist(), "C": [c.tolist() for c in self._C], "R": self.R.tolist(),
+                "branch": self.branch, "counts": dict(self.counts)}
+
+    def set_state(self, st: dict) -> None:
+        self.k, self.scale, self.R = int(st["k"]), np.array(st["scale"], dtype=float), np.array(st["R"], dtype=float)
+        self._C = deque((np.array(c, dtype=float) for c in st["C"]), maxlen=self.window)
+        self.branch, self.counts = st["branch"], {k: int(v) for k, v in st["counts"].items()}
+
     def status(self) -> dict:
         """Live estimate for nav/status: R [unit^2], its ratio to the reported R (diagonal of R~), k, last branch."""
         return {"R": self.R.tolist(), "scale_diag": np.diag(self.scale).tolist(), "k": self.k, "branch": self.branch,

@@ -10,6 +10,8 @@ omega_ib_b = C_bn omega_ie_n with omega_ie_n = Omega (cos L, 0, -sin L):
   sin yaw = -w_y cos roll + w_z sin roll, cos yaw = w_x cos pitch + (w_y sin roll + w_z cos roll) sin pitch;
   1-sigma sqrt(b_g^2 + arw^2 / T) / (Omega cos L) from the gyro, plus tan L times the levelling error. It needs
   a gyro whose bias is well below the horizontal earth rate (about 15 cos L deg/h): refused otherwise.
+The engine's alignment state machine (class Alignment): 'coarse' while the heading is unknown, then 'fine' from
+the fix that starts the filter, 'aligned' once the heading 1-sigma is below align_heading_std.
 In motion (seed 002 step S3-1; Groves 2013 section 14.4.2): with the GNSS velocity v_n of a vehicle whose
 body x axis moves along its velocity (land vehicles, fixed-wing aircraft): yaw = atan2(v_E, v_N) and
 pitch = atan2(-v_D, sqrt(v_N^2 + v_E^2)) (the climb angle); roll 0 with a large variance for ground vehicles.
@@ -18,13 +20,19 @@ yaw mounting); the climb-angle pitch likewise with a tilt allowance (suspension,
 """
 from __future__ import annotations
 
+import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from . import earth
-from .types import ImuNoise
+from .aiding import antenna_velocity, position_model
+from .eskf import N_STATES, POS, VEL, initial_covariance
+from .rotation import euler_to_quat, quat_to_euler
+from .types import NS, AlignState, GnssFix, ImuNoise, InitialState, NavConfig
+
+log = logging.getLogger("zennav.nav")
 
 
 def level(f_b_mean) -> tuple[float, float]:
@@ -106,3 +114,192 @@ def course_alignment(v_n, std_v_n, course_std: float, tilt_std: float) -> tuple[
     yaw_std = math.sqrt(across2 / speed_h**2 + course_std**2)
     pitch_std = math.sqrt(sd**2 / speed_h**2 + tilt_std**2)
     return np.array([0.0, pitch, yaw]), np.array([tilt_std, pitch_std, yaw_std])
+
+
+class Alignment:
+    """Coarse alignment of the engine and the alignment state machine (see the module docstring). With the
+    heading unknown the engine is ``coarse``: it integrates the attitude only, holds the last GNSS velocity and
+    dead-reckons on it (Navigator._advance_coarse), and hands every GNSS fix to ``on_fix``, which tracks it, levels
+    and gyrocompasses at rest, or starts the filter in motion ('fine').
+
+    initial: the engine's initial state (yaw 0 placeholder when coarse); tilt_std: roll/pitch 1-sigma [rad] and
+    tilt_source where it came from; seg / rest: angle [rad], velocity [m/s] increments and time [s] since the last
+    fix / summed over the current rest; prev_track: (t_ns, llh, std_ned) of the last tracked fix; times: data time
+    [ns] each state was entered."""
+
+    def __init__(self, config: NavConfig, initial: InitialState, coarse: bool):
+        self.config = config
+        self.initial = initial
+        self.coarse = coarse
+        self.tilt_std = float(max(initial.std_euler[0], initial.std_euler[1]))
+        self.tilt_source = "initial_state" if self.tilt_std < config.align_tilt_std else "none"
+        self.seg = [0.0] * 7
+        self.rest = [0.0] * 7
+        self.rest_prev = False  # the last fix was at rest
+        self.prev_track: tuple | None = None
+        self.gyrocompass_refusal = gyrocompass_refusal(config.imu_noise, float(initial.llh[0]),
+                                                       config.align_gyrocompass_s, config.align_max_heading_std)
+        self.times: dict[str, int] = {}
+        self.method = "" if coarse else "given"
+        self.state = AlignState.COARSE
+
+    def start(self, nav) -> None:
+        """Enter the first state at the engine's start time."""
+        cfg = self.config
+        if self.coarse:
+            self._set_state(nav, AlignState.COARSE, nav.t_ns,
+                            self.gyrocompass_refusal or "gyrocompassing possible at rest")
+            if self.gyrocompass_refusal:
+                nav.counters["gyrocompass_refused"] += 1
+        else:
+            aligned = self.initial.std_euler[2] < cfg.align_heading_std
+            self._set_state(nav, AlignState.ALIGNED if aligned else AlignState.FINE, nav.t_ns, "heading given")
+
+    def _set_state(self, nav, state: AlignState, t_ns: int, detail: str) -> None:
+        self.state = state
+        self.times[str(state)] = int(t_ns)
+        log.info("alignment %s at t=%.3f s (%s), heading 1-sigma %.2f deg", state, t_ns / NS, detail,
+                 math.degrees(math.sqrt(nav.P[8, 8])))
+
+    def check_aligned(self, nav, t_ns: int) -> None:
+        """'fine' -> 'aligned' once the heading 1-sigma is below align_heading_std (at a fused fix)."""
+        if self.state == AlignState.FINE and nav.std_att[2] < self.config.align_heading_std:
+            self._set_state(nav, AlignState.ALIGNED, t_ns, "")
+
+    def add(self, dtheta, dvel, dt: float) -> None:
+        """Coarse: sum the bias-corrected increments [rad, m/s] over dt [s] for levelling and gyrocompassing."""
+        seg = self.seg
+        for i in range(3):
+            seg[i] += dtheta[i]
+            seg[3 + i] += dvel[i]
+        seg[6] += dt
+
+    def on_attitude(self, nav, t_ns: int, roll: float, pitch: float, std: float, max_age_s: float) -> bool:
+        """Roll and pitch [rad] with 1-sigma std [rad] from an attitude source at t_ns: taken only while coarse,
+        when at most as uncertain as the tilt known so far and at most max_age_s from the engine's time."""
+        ok = self.coarse and all(map(math.isfinite, (roll, pitch, std))) and 0.0 < std <= self.tilt_std
+        if ok and abs(t_ns - nav.t_ns) <= max_age_s * NS:
+            self.set_tilt(nav, roll, pitch, std, "attitude_source")
+            return True
+        return False
+
+    def set_tilt(self, nav, roll: float, pitch: float, std: float, source: str) -> None:
+        """Coarse alignment: replace roll and pitch [rad] (yaw kept) and their 1-sigma [rad]."""
+        s = nav.state
+        yaw = quat_to_euler(s.q_nb)[2]
+        s.q0, s.q1, s.q2, s.q3 = (float(x) for x in euler_to_quat([roll, pitch, yaw]))
+        if source != self.tilt_source:
+            nav.counters[f"align_tilt_{source}"] += 1
+            log.info("coarse alignment: roll %.2f deg, pitch %.2f deg (1-sigma %.2f deg) from %s", math.degrees(roll),
+                     math.degrees(pitch), math.degrees(std), source)
+        self.tilt_std, self.tilt_source = float(std), source
+
+    def _fix_velocity(self, fix: GnssFix, std_pos: np.ndarray):
+        """NED velocity [m/s] of the antenna at a fix and its 1-sigma: the reported one (floored), else the
+        difference with the last tracked fix when it is at most outage_timeout_s old; (None, None) otherwise."""
+        cfg = self.config
+        if fix.v_n is not None and cfg.use_gnss_velocity:
+            return np.asarray(fix.v_n, dtype=float), np.maximum(fix.std_v_n, cfg.vel_std_floor_mps)
+        prev = self.prev_track
+        dt = (fix.t_ns - prev[0]) / NS if prev is not None else 0.0
+        if not 0.0 < dt <= cfg.outage_timeout_s:
+            return None, None
+        v = earth.llh_to_ned(np.asarray(fix.llh, dtype=float), prev[1]) / dt
+        return v, np.sqrt(prev[2] ** 2 + std_pos**2) / dt
+
+    def on_fix(self, nav, fix: GnssFix, omega_ib_b: np.ndarray) -> str:
+        """Coarse alignment at a fix that passed the jump test: track it, level and gyrocompass at rest, or align in
+        motion once fast enough. Returns how the fix was used: align_coarse (tracked), align_gyrocompass or
+        align_in_motion (the fix that started the filter)."""
+        cfg = self.config
+        std_pos = np.maximum(fix.std_ned, cfg.pos_std_floor_m)
+        v, std_v = self._fix_velocity(fix, std_pos)
+        seg, rest = self.seg, self.rest
+        self.tilt_std += cfg.imu_noise.gyro_bias_std * seg[6]  # roll/pitch drift on the gyro since the last fix
+        still = v is not None and math.hypot(v[0], v[1]) <= cfg.align_still_speed_mps + 3.0 * max(std_v[0], std_v[1])
+        if still and self.rest_prev:
+            self.rest = rest = [a + b for a, b in zip(rest, seg)]
+        elif not still:
+            self.rest = rest = [0.0] * 7
+        self.rest_prev, self.seg = still, [0.0] * 7
+        self._track(nav, fix, omega_ib_b, v, std_pos, std_v)
+        self.prev_track = (fix.t_ns, np.asarray(fix.llh, dtype=float), std_pos)
+        rest_s = rest[6]
+        if rest_s >= cfg.align_level_s:
+            f_b = np.array(rest[3:6]) / rest_s
+            if levelling_std(cfg.imu_noise, rest_s) <= self.tilt_std:
+                self.set_tilt(nav, *level(f_b), levelling_std(cfg.imu_noise, rest_s), "levelling")
+            if rest_s >= cfg.align_gyrocompass_s and not self.gyrocompass_refusal:
+                al = static_alignment(f_b, np.array(rest[0:3]) / rest_s, nav.state.lat, rest_s, cfg.imu_noise,
+                                      cfg.align_max_heading_std)
+                return self._start_fine(nav, al.euler, al.std_euler, "gyrocompass", fix, omega_ib_b, v, std_pos,
+                                        std_v)
+        fast = v is not None and math.hypot(v[0], v[1]) >= cfg.align_min_speed_mps
+        euler, std_euler = (course_alignment(v, std_v, cfg.align_course_std, cfg.align_tilt_std) if fast
+                            else (None, None))
+        if fast and std_euler[2] <= cfg.align_max_heading_std:
+            if self.tilt_std < cfg.align_tilt_std:  # a better roll and pitch than 0 and the climb angle
+                euler[:2] = quat_to_euler(nav.state.q_nb)[:2]
+                std_euler[:2] = self.tilt_std
+            else:
+                self.tilt_source = "climb_angle"
+            return self._start_fine(nav, euler, std_euler, "in_motion", fix, omega_ib_b, v, std_pos, std_v)
+        return "align_coarse"
+
+    def _track(self, nav, fix: GnssFix, omega_ib_b: np.ndarray, v_ant_n, std_pos: np.ndarray, std_v) -> None:
+        """Put the antenna at the fix and, when given, its velocity at v_ant_n [m/s]; their variances become those
+        of the fix (std_pos [m], std_v [m/s])."""
+        P = nav.P
+        P[0:6, :] = 0.0
+        P[:, 0:6] = 0.0
+        P[POS, POS] = np.diag(np.square(std_pos))
+        P[VEL, VEL] = np.diag(np.square(std_v if std_v is not None else self.initial.std_v_n))
+        age = (nav.t_ns - fix.t_ns) / NS
+        v_ins_ant = antenna_velocity(nav.state, nav.lever_b, omega_ib_b)
+        z, _ = position_model(nav.state, nav.lever_b, np.asarray(fix.llh, dtype=float), v_ins_ant, age)
+        dx = np.zeros(N_STATES)
+        dx[POS] = z
+        if v_ant_n is not None:
+            dx[VEL] = v_ins_ant - v_ant_n
+        nav.feedback(dx)
+
+    def _start_fine(self, nav, euler, std_euler, method: str, fix: GnssFix, omega_ib_b, v_ant_n, std_pos,
+                    std_v) -> str:
+        """End of coarse alignment: attitude euler [rad] with 1-sigma std_euler [rad], position and velocity at the
+        fix, and a fresh covariance from these 1-sigma values (the bias uncertainty of the initial state)."""
+        s = nav.state
+        s.q0, s.q1, s.q2, s.q3 = (float(x) for x in euler_to_quat(euler))
+        self._track(nav, fix, omega_ib_b, v_ant_n, std_pos, std_v)
+        start = replace(self.initial, t_ns=fix.t_ns, llh=s.llh, v_n=s.v_n, euler=np.asarray(euler, dtype=float),
+                        std_pos_ned=std_pos, std_v_n=self.initial.std_v_n if std_v is None else std_v,
+                        std_euler=np.asarray(std_euler, dtype=float), heading_known=True)
+        nav.start_filter(initial_covariance(start, self.config), fix.t_ns)
+        self.coarse = False
+        self.method = method
+        nav.counters[f"align_{method}"] += 1
+        self._set_state(nav, AlignState.FINE, fix.t_ns,
+                        f"{method}: roll, pitch, yaw {np.round(np.degrees(euler), 2)} deg")
+        return f"align_{method}"
+
+    def status(self, nav) -> dict:
+        return {"state": self.state, "method": self.method, "heading_std_rad": float(nav.std_att[2]),
+                "times_ns": dict(self.times), "tilt_source": self.tilt_source, "gyrocompass": self.gyrocompass_refusal}
+
+    def get_state(self) -> dict:
+        """Everything of the alignment that determines the engine's future output (plain, msgpack-safe)."""
+        track = self.prev_track
+        return {"coarse": bool(self.coarse), "state": str(self.state), "method": self.method,
+                "times": dict(self.times), "tilt_std": float(self.tilt_std), "tilt_source": self.tilt_source,
+                "seg": [float(x) for x in self.seg], "rest": [float(x) for x in self.rest],
+                "rest_prev": bool(self.rest_prev),
+                "prev_track": None if track is None else [int(track[0]), track[1].tolist(), track[2].tolist()]}
+
+    def set_state(self, st: dict) -> None:
+        self.coarse, self.state, self.method = bool(st["coarse"]), AlignState(st["state"]), st["method"]
+        self.times = {str(k): int(v) for k, v in st["times"].items()}
+        self.tilt_std, self.tilt_source = float(st["tilt_std"]), st["tilt_source"]
+        self.seg, self.rest, self.rest_prev = [float(x) for x in st["seg"]], [float(x) for x in st["rest"]], \
+            bool(st["rest_prev"])
+        track = st["prev_track"]
+        self.prev_track = None if track is None else (int(track[0]), np.array(track[1], dtype=float),
+                                                      np.array(track[2], dtype=float))

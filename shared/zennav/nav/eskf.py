@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import earth
-from .types import ImuNoise
+from .types import ImuNoise, InitialState, NavConfig
 
 N_STATES = 15
 POS, VEL, ATT, BG, BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
@@ -84,6 +84,24 @@ def error_model(lat: float, h: float, v_n, C_nb: np.ndarray, f_b, noise: ImuNois
         gb, gb, gb, ab, ab, ab,
     ]
     return F
+
+
+def initial_covariance(initial: InitialState, config: NavConfig) -> np.ndarray:
+    """P0 from the initial 1-sigma values (bias 1-sigma: the initial state's, else the IMU model's); the roll/pitch
+    uncertainty is rotated by the yaw into N/E."""
+    noise = config.imu_noise
+    P0 = np.zeros((N_STATES, N_STATES))
+    P0[POS, POS] = np.diag(np.square(initial.std_pos_ned))
+    P0[VEL, VEL] = np.diag(np.square(initial.std_v_n))
+    cy, sy = math.cos(initial.euler[2]), math.sin(initial.euler[2])
+    R_yaw = np.array([[cy, -sy], [sy, cy]])
+    P0[6:8, 6:8] = R_yaw @ np.diag(np.square(initial.std_euler[:2])) @ R_yaw.T
+    P0[8, 8] = initial.std_euler[2] ** 2
+    std_bg = initial.std_gyro_bias if initial.std_gyro_bias is not None else np.full(3, noise.gyro_bias_std)
+    std_ba = initial.std_accel_bias if initial.std_accel_bias is not None else np.full(3, noise.accel_bias_std)
+    P0[BG, BG] = np.diag(np.square(std_bg))
+    P0[BA, BA] = np.diag(np.square(std_ba))
+    return P0
 
 
 def process_noise_psd(noise: ImuNoise) -> np.ndarray:

@@ -101,6 +101,17 @@ class FeatureWindow:
             q[5] += dtheta[2] * dtheta[2] / dt
             self.dt += dt
 
+    def get_state(self) -> dict:
+        return {"dtheta": list(self.dtheta), "dvel": list(self.dvel), "sq": list(self.sq), "dt": self.dt,
+                "yaw0": float(self.yaw0)}
+
+    @classmethod
+    def from_state(cls, st: dict) -> "FeatureWindow":
+        w = cls(float(st["yaw0"]))
+        w.dtheta, w.dvel, w.sq = ([float(x) for x in st[k]] for k in ("dtheta", "dvel", "sq"))
+        w.dt = float(st["dt"])
+        return w
+
     def means(self) -> list[float]:
         return [x / self.dt for x in self.dvel] + [x / self.dt for x in self.dtheta]
 
@@ -134,6 +145,21 @@ class Shadow:
         mechanize(self.state, dth, dv, *self.prev, dt)
         self.prev = (dth, dv)
         self.window.add(dth, dv, dt)
+
+    def get_state(self) -> dict:
+        s = self.state
+        return {"t0_ns": int(self.t0_ns), "state": [s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3],
+                "bg": list(self.bg), "ba": list(self.ba), "prev": [list(self.prev[0]), list(self.prev[1])],
+                "window": self.window.get_state(), "last_sample_ns": int(self.last_sample_ns)}
+
+    @classmethod
+    def from_state(cls, st: dict) -> "Shadow":
+        sh = cls.__new__(cls)
+        sh.t0_ns, sh.state = int(st["t0_ns"]), NavState(*(float(x) for x in st["state"]))
+        sh.bg, sh.ba = [float(x) for x in st["bg"]], [float(x) for x in st["ba"]]
+        sh.prev = tuple(tuple(float(x) for x in p) for p in st["prev"])
+        sh.window, sh.last_sample_ns = FeatureWindow.from_state(st["window"]), int(st["last_sample_ns"])
+        return sh
 
 
 class LearningTap:
@@ -189,6 +215,28 @@ class LearningTap:
         self.since_fix = FeatureWindow(s.euler[2])
         self.last_query_ns = t_ns
         self.shift_ne = np.zeros(2)
+
+    def get_state(self) -> dict:
+        """Windows, shadow INSs and the samples and queries not yet popped (plain, msgpack-safe)."""
+        return {"rate_window": self.rate_window.get_state(), "body_window": self.body_window.get_state(),
+                "body_chunks": [c.get_state() for c in self.body_chunks], "since_fix": self.since_fix.get_state(),
+                "last_query_ns": int(self.last_query_ns), "shift_ne": self.shift_ne.tolist(),
+                "shadows": [sh.get_state() for sh in self.shadows],
+                "samples": [[int(x.t_ns), x.target, x.features.tolist(), np.asarray(x.value).tolist()]
+                            for x in self.samples],
+                "queries": [[int(q.t_ns), q.target, q.features.tolist(), float(q.dt_s)] for q in self.queries]}
+
+    def set_state(self, st: dict) -> None:
+        self.rate_window = FeatureWindow.from_state(st["rate_window"])
+        self.body_window = FeatureWindow.from_state(st["body_window"])
+        self.body_chunks = deque(FeatureWindow.from_state(c) for c in st["body_chunks"])
+        self.since_fix = FeatureWindow.from_state(st["since_fix"])
+        self.last_query_ns, self.shift_ne = int(st["last_query_ns"]), np.array(st["shift_ne"], dtype=float)
+        self.shadows = [Shadow.from_state(sh) for sh in st["shadows"]]
+        self.samples = [LearnSample(int(t), target, np.array(f, dtype=float), np.array(v, dtype=float))
+                        for t, target, f, v in st["samples"]]
+        self.queries = [LearnQuery(int(t), target, np.array(f, dtype=float), float(dt))
+                        for t, target, f, dt in st["queries"]]
 
     def _body_sample(self, t_ns: int, s: NavState, converged: bool) -> None:
         """At a fused fix: slide the body-velocity window by this GNSS interval and sample it once it spans

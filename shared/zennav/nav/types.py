@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from enum import IntEnum
+from enum import Enum, IntEnum
 
 import numpy as np
 
@@ -24,6 +24,28 @@ class FixType(IntEnum):
     DGPS = 2
     RTK_FLOAT = 3
     RTK_FIXED = 4
+
+
+class _StrEnum(str, Enum):
+    """A str that is an enum member: compares equal to, formats and msgpack-packs as its value ("valid")."""
+
+    __str__ = str.__str__
+    __format__ = str.__format__
+
+
+class GnssState(_StrEnum):
+    """GNSS position aiding: fixes fused within NavConfig.outage_timeout_s (valid) or not (outage)."""
+
+    VALID = "valid"
+    OUTAGE = "outage"
+
+
+class AlignState(_StrEnum):
+    """Alignment: heading unknown (coarse), filter running with a large heading variance (fine), done (aligned)."""
+
+    COARSE = "coarse"
+    FINE = "fine"
+    ALIGNED = "aligned"
 
 
 @dataclass
@@ -247,6 +269,7 @@ class NavConfig:
     learning: bool = False  # emit LearnSample / LearnQuery for learned INS-error compensation (nav/learning.py)
     learn_after_s: float = 30.0  # no training samples before this time [s] from the start (filter converging)
     learn_horizon_s: float = 60.0  # longest outage the "drift" target learns [s] (shadow INS length)
+    learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 

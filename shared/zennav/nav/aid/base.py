@@ -1,0 +1,109 @@
+"""What every aiding source shares with the engine: the measurement it hands over for the engine's one update,
+the status record of each attempt (AidReport) and the AidSource base class with its registry by name.
+
+A source owns its input checks, its control (when to fuse, start, stop, reset) and its measurement model; the
+engine (zennav.nav.navigator) owns mechanization, covariance propagation, the one update (Joseph form,
+chi-square gate, adaptive R where the source has an estimator) and the feedback. A new source (non-holonomic
+constraint, zero velocity, odometer, DVL, depth) is a new subclass added to zennav.nav.aid.build_sources; the
+engine keeps its sources by name, routes each input to the sources whose ``inputs`` name its kind and calls
+``on_step`` after every IMU sample where a source defines it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..adaptive_r import AdaptiveR
+
+
+@dataclass
+class AidReport:
+    """One aiding attempt of a source: observation, innovation (predicted minus observed), its variance (diagonal
+    of S), test ratio d2/threshold (> 1 fails the gate), fused or not, and the reason when not: a rejection
+    (gnss_*, learned_*), or during coarse alignment how the fix was used instead (align_coarse: tracked;
+    align_in_motion / align_gyrocompass: the fix that started the filter). last_fused_t_ns: the source's last
+    fused measurement time [ns] after this attempt (-1: never); faults: flags of this attempt ("jump",
+    "gate_trapped", "gate", "stale", "late", an input check's name)."""
+
+    source: str
+    t_ns: int
+    observation: list
+    innovation: list
+    innovation_var: list
+    test_ratio: float
+    fused: bool
+    reason: str = ""
+    last_fused_t_ns: int = -1
+    faults: list = field(default_factory=list)
+
+
+@dataclass
+class Measurement:
+    """One measurement for the engine's update: z = predicted minus observed, z = H dx + v, v ~ N(0, R).
+
+    observation: what the source observed (for the report); gated: apply the chi-square gate (and the source's
+    adaptive R); gain_states: the states that may take gain (None: all; else a Schmidt update)."""
+
+    t_ns: int
+    observation: np.ndarray
+    z: np.ndarray
+    H: np.ndarray
+    R: np.ndarray
+    gated: bool = True
+    gain_states: slice | None = None
+    faults: tuple = ()
+
+
+class AidSource:
+    """Base of the aiding sources. name: the source name in reports, counters and the key nav/aid/<name>;
+    inputs: the input kinds the engine routes to ``on_input``; adaptive: the adaptive-R estimator or None;
+    R_used: R of the last update [unit^2]; last_fused_t_ns: time of the last fused measurement (-1: never)."""
+
+    inputs: tuple[str, ...] = ()
+
+    def __init__(self, name: str, adaptive: AdaptiveR | None = None):
+        self.name = name
+        self.adaptive = adaptive
+        self.R_used: np.ndarray | None = None
+        self.last_fused_t_ns = -1
+
+    def admit(self, nav, data) -> bool:
+        """Input checks as the data arrives (before it is queued to its time); False: rejected (counted, reported)."""
+        return True
+
+    def on_input(self, nav, data) -> bool:
+        """Fuse one input (its kind in ``inputs``) into the engine ``nav``; returns whether a measurement was fused."""
+        raise NotImplementedError
+
+    on_step = None  # optional: on_step(nav) after every IMU sample (e.g. a timeout)
+
+    def report(self, nav, t_ns: int, observation, innovation, innovation_var, test_ratio: float, fused: bool,
+               reason: str = "", faults=()) -> None:
+        """Append this source's status record of one attempt to the engine's reports."""
+        nav.add_report(AidReport(self.name, int(t_ns), list(observation), list(innovation), list(innovation_var),
+                                 test_ratio, fused, reason, int(self.last_fused_t_ns), list(faults)))
+
+    def reject(self, nav, t_ns: int, reason: str, detail: str, observation, innovation=(), innovation_var=(),
+               test_ratio: float = float("nan"), faults=()) -> None:
+        """Count a rejection under reason and report it."""
+        nav.count_rejection(reason, t_ns, detail)
+        self.report(nav, t_ns, observation, innovation, innovation_var, test_ratio, False, reason, faults)
+
+    def status(self) -> dict:
+        """The live measurement noise for nav/status: the adaptive estimate, else the R of the last update."""
+        if self.adaptive is not None:
+            return self.adaptive.status()
+        return {"R": self.R_used.tolist()}
+
+    def get_state(self) -> dict:
+        """Everything of this source that determines the engine's future output (plain, msgpack-safe)."""
+        return {"R_used": None if self.R_used is None else self.R_used.tolist(),
+                "last_fused_t_ns": int(self.last_fused_t_ns),
+                "adaptive": None if self.adaptive is None else self.adaptive.get_state()}
+
+    def set_state(self, state: dict) -> None:
+        self.R_used = None if state["R_used"] is None else np.array(state["R_used"], dtype=float)
+        self.last_fused_t_ns = int(state["last_fused_t_ns"])
+        if self.adaptive is not None:
+            self.adaptive.set_state(state["adaptive"])

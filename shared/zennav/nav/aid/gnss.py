@@ -1,0 +1,243 @@
+"""GNSS aiding sources: the antenna position (input quality gates, jump test, gate-trap / reacquire recovery,
+outage declaration and recovery; during coarse alignment it hands the fix to the alignment) and the antenna
+velocity. Models in zennav.nav.aiding; the fix is fused at its own time (the engine splits the IMU interval).
+
+Faults, each rejection counted under its reason and reported:
+- input: gnss_malformed, gnss_duplicate, gnss_out_of_order, gnss_fix_quality, gnss_few_satellites, gnss_std,
+  gnss_stale (older than MAX_FIX_AGE_S behind the IMU);
+- jump (gnss_pos_jump): further than max_jump_m horizontally from the INS prediction and outside the chi-square
+  gate of the horizontal innovation with the reported R (not the adapted one, so that an inflated R cannot let
+  a jump in); kept out of the adaptive R estimate; in coarse alignment: further than max_jump_m from the
+  dead-reckoned position, at most reacquire_fixes times in a row;
+- gate (gnss_pos_gate, gnss_vel_gate): the chi-square gate of the update;
+- gate trapped: position fixes keep arriving but are all rejected for gate_reset_s, or reacquire_fixes of them
+  after a loss of GNSS: the INS (not the GNSS) is taken to be wrong, position and velocity covariance are reset
+  from the innovation and the fix is fused ungated.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..adaptive_r import AdaptiveR
+from ..aiding import antenna_velocity, position_model, velocity_model
+from ..eskf import POS, VEL
+from ..types import NS, GnssFix, GnssState, NavConfig
+from .base import AidSource, Measurement
+
+log = logging.getLogger("zennav.nav")
+
+MAX_FIX_AGE_S = 1.0  # a fix older than this behind the IMU time is stale and not fused
+
+
+@dataclass
+class FixContext:
+    """A GNSS fix at the engine's time: age_s = IMU time minus fix time [s] (> 0 only for a fix that arrived
+    after the IMU passed its time), omega_ib_b [rad/s] the bias-corrected body rate of the last IMU interval,
+    coarse: the engine was in coarse alignment when the fix came; position_fused: set by the position source."""
+
+    fix: GnssFix
+    age_s: float
+    omega_ib_b: np.ndarray
+    coarse: bool
+    position_fused: bool = False
+
+
+def adaptive_r(config: NavConfig, dim: int = 3) -> AdaptiveR | None:
+    """The configured adaptive-R estimator of a GNSS source, None when adaptive R is off."""
+    if not config.adaptive_r:
+        return None
+    return AdaptiveR(dim, config.adaptive_window, config.adaptive_forgetting, config.adaptive_test_probability,
+                     config.adaptive_floor, config.adaptive_ceiling)
+
+
+class GnssPosition(AidSource):
+    """GNSS antenna position [rad, rad, m] with its reported NED 1-sigma floored at pos_std_floor_m.
+
+    gnss_state: valid / outage; valid_t_ns: time of the last fused (or, in coarse alignment, tracked) fix, the
+    engine's start time before any: the outage clock; interval_s: time between the last two fused fixes [s]."""
+
+    inputs = ("gnss",)
+
+    def __init__(self, config: NavConfig, t0_ns: int):
+        super().__init__("gnss_pos", adaptive_r(config))
+        self.config = config
+        self.gnss_state = GnssState.VALID
+        self.valid_t_ns = int(t0_ns)
+        self.interval_s: float | None = None
+        self.last_fix_t_ns = -1  # last fix that passed the input checks
+        self.streak_start_t_ns: int | None = None  # first of the current run of rejected position fixes
+        self.streak_fixes = 0
+        self.streak_after_loss = False
+
+    # ------------------------------------------------------------------ input checks
+    def admit(self, nav, fix: GnssFix) -> bool:
+        """Input quality gates of a fix as it arrives (the whole fix, velocity included); rejected ones are
+        counted and reported. Starts the streak bookkeeping of the gate-trap recovery."""
+        reason = self._input_error(nav, fix)
+        if reason:
+            self.reject(nav, fix.t_ns, reason, "", np.asarray(fix.llh, float).tolist(), faults=(reason[5:],))
+            return False
+        gap_s = (fix.t_ns - self.last_fix_t_ns) / NS if self.last_fix_t_ns >= 0 else 0.0
+        if self.streak_start_t_ns is None:
+            self.streak_after_loss = gap_s > self.config.outage_timeout_s
+        self.last_fix_t_ns = fix.t_ns
+        return True
+
+    def _input_error(self, nav, fix: GnssFix) -> str:
+        cfg = self.config
+        arrays = [fix.llh, fix.std_ned] + ([fix.v_n, fix.std_v_n] if fix.v_n is not None else [])
+        if any(np.shape(a) != (3,) for a in arrays) or not all(np.all(np.isfinite(a)) for a in arrays):
+            return "gnss_malformed"
+        if fix.t_ns == self.last_fix_t_ns:
+            return "gnss_duplicate"
+        if fix.t_ns < self.last_fix_t_ns:
+            return "gnss_out_of_order"
+        if fix.fix < cfg.min_fix:
+            return "gnss_fix_quality"
+        if 0 <= fix.num_sats < cfg.min_sats:
+            return "gnss_few_satellites"
+        if np.any(np.asarray(fix.std_ned) <= 0.0) or np.max(fix.std_ned) > cfg.max_std_m:
+            return "gnss_std"
+        if (nav.t_ns - fix.t_ns) / NS > MAX_FIX_AGE_S:
+            return "gnss_stale"
+        return ""
+
+    # ------------------------------------------------------------------ fusion
+    def on_input(self, nav, ctx: FixContext) -> bool:
+        fix = ctx.fix
+        fix_llh = np.asarray(fix.llh, dtype=float)
+        v_ant_n = antenna_velocity(nav.state, nav.lever_b, ctx.omega_ib_b)
+        z, H = position_model(nav.state, nav.lever_b, fix_llh, v_ant_n, ctx.age_s)
+        R = np.diag(np.square(np.maximum(fix.std_ned, self.config.pos_std_floor_m)))
+        if ctx.coarse:
+            self._coarse_fix(nav, ctx, fix_llh, z)
+            return False
+        m = Measurement(fix.t_ns, fix_llh, z, H, R)
+        if self._gate_trapped(fix.t_ns):
+            self._reset_position_velocity(nav, z, R, fix.t_ns)
+            m.gated, m.faults = False, ("gate_trapped",)
+            fused = nav.update(self, m)
+        else:
+            fused = not self._is_jump(nav, m) and nav.update(self, m)
+        if fused:
+            if 0 < (fix.t_ns - self.valid_t_ns) / NS < 5.0:
+                self.interval_s = (fix.t_ns - self.valid_t_ns) / NS
+            self.valid_t_ns = fix.t_ns
+            self.streak_start_t_ns, self.streak_fixes = None, 0
+            if self.gnss_state != GnssState.VALID:
+                nav.hold_learning(fix.t_ns)
+                log.warning("GNSS recovered at t=%.3f s after outage", fix.t_ns / NS)
+                nav.counters["outage_recovered"] += 1
+            self.gnss_state = GnssState.VALID
+        else:
+            if self.streak_start_t_ns is None:
+                self.streak_start_t_ns = fix.t_ns
+            self.streak_fixes += 1
+        ctx.position_fused = fused
+        return fused
+
+    def on_step(self, nav) -> None:
+        """Declare an outage when no fix has been fused for outage_timeout_s."""
+        if self.gnss_state == GnssState.VALID and (nav.t_ns - self.valid_t_ns) / NS > self.config.outage_timeout_s:
+            self.gnss_state = GnssState.OUTAGE
+            nav.counters["outage_declared"] += 1
+            log.warning("GNSS outage declared at t=%.3f s (no valid fix for %.1f s)", nav.t_ns / NS,
+                        self.config.outage_timeout_s)
+
+    def _is_jump(self, nav, m: Measurement) -> bool:
+        """Jump test of a position fix before its update (see the module docstring)."""
+        gate2, z = nav.gate_threshold(2), m.z
+        if gate2 is None or math.hypot(z[0], z[1]) <= self.config.max_jump_m:
+            return False
+        S = m.H @ nav.P @ m.H.T + m.R
+        if float(z[:2] @ np.linalg.solve(S[:2, :2], z[:2])) <= gate2:
+            return False
+        ratio = float(z @ np.linalg.solve(S, z)) / nav.gate_threshold(3)
+        self.reject(nav, m.t_ns, "gnss_pos_jump", f"test ratio {ratio:.1f}, innovation {np.round(z, 2)}",
+                    m.observation.tolist(), z.tolist(), np.diag(S).tolist(), ratio, ("jump",))
+        return True
+
+    def _gate_trapped(self, t_ns: int) -> bool:
+        """True when the current run of rejected position fixes says the INS has left its own uncertainty."""
+        if self.streak_start_t_ns is None:
+            return False
+        cfg = self.config
+        if self.streak_after_loss and self.streak_fixes >= cfg.reacquire_fixes:
+            return True
+        return (t_ns - self.streak_start_t_ns) / NS >= cfg.gate_reset_s
+
+    def _reset_position_velocity(self, nav, z: np.ndarray, R: np.ndarray, t_ns: int) -> None:
+        """Decorrelate position and velocity and widen their variances to cover the innovation z [m] and the
+        velocity error that would explain it since the last fused fix; keeps P positive definite."""
+        P = nav.P
+        since_s = max((t_ns - self.valid_t_ns) / NS, 1.0)
+        var_pos = np.maximum(np.diag(P)[POS], z * z + np.diag(R))
+        var_vel = np.maximum(np.diag(P)[VEL], (z / since_s) ** 2)
+        P[0:6, :] = 0.0
+        P[:, 0:6] = 0.0
+        P[POS, POS] = np.diag(var_pos)
+        P[VEL, VEL] = np.diag(var_vel)
+        nav.counters["gate_reset"] += 1
+        nav.hold_learning(t_ns)
+        log.warning("t=%.3f s: %d GNSS fixes rejected in a row, INS taken as wrong: covariance reset, fix fused",
+                    t_ns / NS, self.streak_fixes)
+
+    def _coarse_fix(self, nav, ctx: FixContext, fix_llh: np.ndarray, z: np.ndarray) -> None:
+        """Coarse alignment (z: INS antenna minus fix [m, NED]): reject a jump from the dead-reckoned position,
+        else the fix counts as fused for the outage logic and the alignment tracks it or aligns on it."""
+        t = ctx.fix.t_ns
+        dist = math.hypot(z[0], z[1])
+        if (nav.alignment.prev_track is not None and dist > self.config.max_jump_m
+                and self.streak_fixes < self.config.reacquire_fixes):
+            self.streak_fixes += 1
+            self.reject(nav, t, "gnss_pos_jump", f"coarse alignment, {dist:.1f} m from the dead-reckoned position",
+                        fix_llh.tolist(), z.tolist(), faults=("jump",))
+            return
+        self.streak_fixes = 0
+        if self.gnss_state != GnssState.VALID:
+            nav.counters["outage_recovered"] += 1
+        self.gnss_state, self.valid_t_ns, self.last_fused_t_ns = GnssState.VALID, t, t
+        reason = nav.alignment.on_fix(nav, ctx.fix, ctx.omega_ib_b)
+        if reason == "align_coarse":
+            nav.counters["gnss_align_coarse"] += 1
+            self.report(nav, t, fix_llh.tolist(), z.tolist(), [], float("nan"), False, reason)
+        else:
+            self.report(nav, t, fix_llh.tolist(), [], [], float("nan"), False, reason)
+
+    # ------------------------------------------------------------------ state
+    def get_state(self) -> dict:
+        return {**super().get_state(), "gnss_state": str(self.gnss_state), "valid_t_ns": int(self.valid_t_ns),
+                "interval_s": self.interval_s, "last_fix_t_ns": int(self.last_fix_t_ns),
+                "streak_start_t_ns": self.streak_start_t_ns, "streak_fixes": int(self.streak_fixes),
+                "streak_after_loss": bool(self.streak_after_loss)}
+
+    def set_state(self, state: dict) -> None:
+        super().set_state(state)
+        self.gnss_state = GnssState(state["gnss_state"])
+        self.valid_t_ns, self.interval_s = int(state["valid_t_ns"]), state["interval_s"]
+        self.last_fix_t_ns = int(state["last_fix_t_ns"])
+        self.streak_start_t_ns = state["streak_start_t_ns"]
+        self.streak_fixes, self.streak_after_loss = int(state["streak_fixes"]), bool(state["streak_after_loss"])
+
+
+class GnssVelocity(AidSource):
+    """GNSS antenna velocity [m/s, NED] with its reported 1-sigma floored at vel_std_floor_mps (use_gnss_velocity)."""
+
+    inputs = ("gnss",)
+
+    def __init__(self, config: NavConfig, t0_ns: int):
+        super().__init__("gnss_vel", adaptive_r(config))
+        self.config = config
+
+    def on_input(self, nav, ctx: FixContext) -> bool:
+        fix = ctx.fix
+        if ctx.coarse or fix.v_n is None or not self.config.use_gnss_velocity:
+            return False
+        fix_v_n = np.asarray(fix.v_n, dtype=float)
+        z, H = velocity_model(nav.state, nav.lever_b, ctx.omega_ib_b, fix_v_n)
+        R = np.diag(np.square(np.maximum(fix.std_v_n, self.config.vel_std_floor_mps)))
+        return nav.update(self, Measurement(fix.t_ns, fix_v_n, z, H, R))

@@ -1,0 +1,66 @@
+"""Learned aiding sources, one per target variant of zennav.nav.learning: a compensator's answer to one of the
+engine's queries, fused as a pseudo-measurement and gated like GNSS.
+
+- "position" / "velocity": N and E error rates [m/s, m/s^2] accrued over the query's interval dt_s;
+- "drift": N and E error of the free-running INS since the last fix [m], fused into the position alone (a Schmidt
+  update: velocity, attitude and biases stay as they are, as in the shadow INSs the model learned from); the
+  position shift it applies is kept by the learning tap until the next fix;
+- "body_velocity": the velocity in the body frame [m/s, FRD] (zennav.nav.aiding.body_velocity_model).
+
+An answer is fused only if no GNSS position fix was fused after its query's time (else learned_stale: the filter
+already knows better) and the query is at most NavConfig.learn_answer_max_age_s of data time old (else
+learned_late); a wrong-size or non-finite answer is correction_malformed. Each is counted; stale and late are
+reported.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..aiding import body_velocity_model
+from ..eskf import N_STATES, POS
+from ..learning import OUTPUTS, LearnQuery
+from ..types import NS, NavConfig
+from .base import AidSource, Measurement
+
+
+class LearnedSource(AidSource):
+    """The learned pseudo-measurement of one target variant (see the module docstring); name learned_<target>."""
+
+    inputs = ("correction",)
+
+    def __init__(self, config: NavConfig, target: str):
+        super().__init__(f"learned_{target}")
+        self.target = target
+        self.max_age_ns = int(config.learn_answer_max_age_s * NS)
+
+    def on_input(self, nav, answer: tuple[LearnQuery, object, object]) -> bool:
+        """answer: (query, value, std) with value and its 1-sigma std in the units of the target."""
+        query, value, std = answer
+        value, std = np.asarray(value, dtype=float), np.asarray(std, dtype=float)
+        shape = (len(OUTPUTS[self.target]),)
+        if value.shape != shape or std.shape != shape or not (np.all(np.isfinite(value)) and np.all(std > 0)):
+            nav.count_rejection("correction_malformed", query.t_ns, "")
+            return False
+        if nav.last_fused_t_ns > query.t_ns:
+            self.reject(nav, query.t_ns, "learned_stale", "a GNSS fix was fused after the query", value.tolist(),
+                        faults=("stale",))
+            return False
+        if nav.t_ns - query.t_ns > self.max_age_ns:
+            self.reject(nav, query.t_ns, "learned_late", f"query {(nav.t_ns - query.t_ns) / NS:.3f} s old",
+                        value.tolist(), faults=("late",))
+            return False
+        nav.propagate_covariance()
+        if self.target == "body_velocity":
+            z, H = body_velocity_model(nav.state, value)
+            return nav.update(self, Measurement(query.t_ns, value, z, H, np.diag(np.square(std))))
+        H = np.zeros((2, N_STATES))
+        first = 3 if self.target == "velocity" else 0
+        H[0, first], H[1, first + 1] = 1.0, 1.0
+        if self.target == "drift":
+            fused = nav.update(self, Measurement(query.t_ns, value, value - nav.tap.shift_ne, H,
+                                                np.diag(np.square(std)), gain_states=POS))
+            if fused:
+                nav.tap.shift_ne += nav.last_dx[0:2]
+            return fused
+        return nav.update(self, Measurement(query.t_ns, value, value * query.dt_s, H,
+                                            np.diag(np.square(std * query.dt_s))))
