@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zennav.compensation import ElmanCompensator, make_compensator
+from zennav.learn.learner import ElmanOnline
+from zennav.learn.loop import InProcessLoop, make_compensator
+from zennav.learn.settings import LearnSettings
 from zennav.nav.learning import BODY_FEATURES, DRIFT_FEATURES, RATE_FEATURES, TARGETS
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
@@ -24,7 +26,12 @@ def test_anfis_loop_offers_corrections_during_outage_only(drive):
     t0 = drive.initial.t_ns
     assert all(180e9 <= r.t_ns - t0 <= 211e9 for r in learned)
     assert all(r.fused or r.reason == "learned_position_gate" for r in learned)
-    assert len(comp.trainings) == 1 and comp.trainings[0]["samples"] > 100
+    # one scheduled fit (at min_samples) and one at the outage's first query, through every sample before it
+    st = comp.status()
+    assert (st["sets_published"], st["sets_swapped"], st["live_version_position"]) == (2, 2, 2)
+    seen = comp.core.live["position"].samples_seen  # the outage's start; the samples after it were not needed
+    assert comp.learner.through == seen > comp.settings.min_samples and comp.learner.received > seen
+    assert st["queries"] == st["queries_answered"] + st.get("queries_off_domain", 0) >= len(learned)
     # Deterministic: the same run gives the same solution.
     again = run_replay(drive, outages=[(180.0, 30.0)], compensator=make_compensator("anfis", "position"))
     assert np.array_equal(again.llh, res.llh)
@@ -32,20 +39,29 @@ def test_anfis_loop_offers_corrections_during_outage_only(drive):
 
 def test_elman_predicts_only_under_its_error_threshold(drive):
     """Seed 002: the network predicts only while its training error is under the threshold. On this drive the
-    per-interval corrections are GNSS noise (no learnable drift), so it must stay silent."""
-    comp = ElmanCompensator("position", window=200)  # the window fills before the outage (2 Hz fixes)
+    per-interval corrections are GNSS noise (no learnable drift), so no set is made and the loop stays silent."""
+    comp = InProcessLoop("position", LearnSettings(model="elman", window=200))  # fills before the outage (2 Hz)
     res = run_replay(drive, outages=[(180.0, 30.0)], compensator=comp)
-    assert comp.net is not None and comp.net.train_rmse > comp.threshold
+    net = comp.learner.elman.net
+    assert net is not None and net.train_rmse > comp.settings.threshold
     assert not [r for r in res.reports if r.source.startswith("learned")]
-    comp.threshold = comp.net.threshold = 10.0
-    comp._residuals.extend([np.zeros(2)] * 10)
-    comp._residual_t.extend(range(10))
-    norm = comp.norm()
+    st = comp.status()
+    assert st["learner_elman_not_ready"] == st["learner_fit_points"] >= 2 and st["queries_no_model"] == st["queries"]
+
+
+def test_loop_refuses_queries_outside_the_training_range():
+    """A whole training std beyond the learned range: refused (off_domain), inside it answered."""
+    from zennav.nav.learning import LearnQuery, LearnSample
+
+    rng = np.random.default_rng(5)
+    comp = InProcessLoop("position", LearnSettings(model="elman", window=200, min_samples=100, threshold=10.0))
+    x = rng.normal(size=(300, len(RATE_FEATURES)))
+    comp.add([LearnSample(int(k * 5e8), "position", x[k], 0.1 * x[k, :2]) for k in range(300)])
+    norm = comp.learner.elman.norm()
     inside = (norm["x_min"] + norm["x_max"]) / 2
-    query = type("Q", (), {"target": "position", "features": inside})()
-    assert comp.predict(query) is not None
-    query.features = norm["x_max"] + norm["x_std"]  # a whole training std beyond the learned range: refused
-    assert comp.predict(query) is None and comp.off_domain == 1
+    assert comp.predict(LearnQuery(0, "position", inside, 1.0)) is not None
+    assert comp.predict(LearnQuery(0, "position", norm["x_max"] + norm["x_std"], 1.0)) is None
+    assert comp.status()["queries_off_domain"] == 1
 
 
 def test_body_velocity_correction_observes_the_velocity_error(drive):
@@ -154,18 +170,20 @@ def test_elman_sigma_is_that_of_the_network_running_free():
     n = 1200
     x = rng.normal(size=(n, len(BODY_FEATURES)))
     y = np.cumsum(rng.normal(0.0, 0.05, (n, 3)), axis=0)
-    comp = ElmanCompensator("body_velocity", window=200, free_run_s=30.0)
-    comp.add([LearnSample(int(k * 1e9), "body_velocity", x[k], y[k]) for k in range(n)])
-    # the one-step residuals of the same network, learning as the compensator's does
-    net = Elman(len(BODY_FEATURES), comp.n_hidden, 3, window=comp.window, threshold=comp.threshold,
-                norm=anfis_numpy.fit_normalization(x[:comp.window], y[:comp.window]), seed=comp.seed)
+    s = LearnSettings(model="elman", window=200, free_run_s=30.0)
+    comp = ElmanOnline("body_velocity", s)
+    for k in range(n):
+        comp.add(int(k * 1e9), x[k], y[k])
+    # the one-step residuals of the same network, learning as the online one does
+    net = Elman(len(BODY_FEATURES), s.n_hidden, 3, window=s.window, threshold=s.threshold,
+                norm=anfis_numpy.fit_normalization(x[:s.window], y[:s.window]), seed=s.seed)
     net.set_aligned()
     one_step = []
     for k in range(n):
         if net.ready:
             one_step.append(net.predict(x[k]) - y[k])
         net.learn(x[k], y[k])
-    one_step_sigma = answer_sigma(np.array(one_step[-comp.window:]))[0]
+    one_step_sigma = answer_sigma(np.array(one_step[-s.window:]))[0]
     assert np.all(comp.std() > 1.5 * one_step_sigma), (comp.std(), one_step_sigma)
 
 
@@ -178,12 +196,14 @@ def test_elman_starts_after_min_samples_and_its_normalisation_follows_the_window
     n = 700
     x = rng.normal(size=(n, len(BODY_FEATURES))) + np.linspace(0.0, 5.0, n)[:, None]
     y = rng.normal(size=(n, 3)) + np.linspace(0.0, 20.0, n)[:, None]
-    comp = ElmanCompensator("body_velocity", window=300, min_samples=100)
-    comp.add([LearnSample(int(k * 1e9), "body_velocity", x[k], y[k]) for k in range(99)])
+    comp = ElmanOnline("body_velocity", LearnSettings(model="elman", window=300, min_samples=100))
+    for k in range(99):
+        comp.add(int(k * 1e9), x[k], y[k])
     assert comp.net is None
-    comp.add([LearnSample(int(99e9), "body_velocity", x[99], y[99])])
+    comp.add(int(99e9), x[99], y[99])
     np.testing.assert_allclose(comp.net.y_mean, y[:100].mean(axis=0))
-    comp.add([LearnSample(int(k * 1e9), "body_velocity", x[k], y[k]) for k in range(100, n)])
+    for k in range(100, n):
+        comp.add(int(k * 1e9), x[k], y[k])
     assert comp.learned == n  # the first 100 too, once the network exists; refits at 100, 200, .. 700 learned
     last = slice(n - 300, n)  # the window at the last refit
     np.testing.assert_allclose(comp.net.x_mean, x[last].mean(axis=0))
