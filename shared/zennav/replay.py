@@ -1,9 +1,12 @@
-"""In-process replay: run the navigation engine over a dataset, withholding GNSS in outage windows.
+"""In-process replay: run the navigation engine over a dataset, withholding GNSS in outage windows; and the one
+selection of sensor events (``sensor_events``) and outage syntax (``parse_outage``, ``parse_outage_every``)
+that the ingest service shares, so that the bus carries exactly what the replay feeds the engine.
 
 Outage windows are given in seconds from the first IMU sample of the run (the initial-state time).
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -32,6 +35,31 @@ class ReplayResult:
     wall_s: float = 0.0
 
 
+def parse_outage(text: str) -> tuple[float, float]:
+    """'START:DURATION' [s] -> (start_s, duration_s); ValueError with the reason when malformed."""
+    try:
+        start, dur = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise ValueError(f"expected START:DURATION in seconds, got {text!r}") from None
+    if dur <= 0 or start < 0 or not math.isfinite(start + dur):
+        raise ValueError(f"START must be >= 0 and DURATION > 0, got {text!r}")
+    return start, dur
+
+
+def parse_outage_every(text: str) -> tuple[float, float, float]:
+    """'PERIOD:DURATION[:FIRST]' [s] -> (period_s, duration_s, first_s), FIRST defaulting to PERIOD - DURATION
+    (so '90:30' withholds 60..90 s, 150..180 s, ...); ValueError with the reason when malformed."""
+    try:
+        vals = [float(x) for x in text.split(":")]
+    except ValueError:
+        raise ValueError(f"expected PERIOD:DURATION[:FIRST] in seconds, got {text!r}") from None
+    if len(vals) not in (2, 3) or not all(map(math.isfinite, vals)) or not 0 < vals[1] < vals[0] \
+            or (len(vals) == 3 and vals[2] < 0):
+        raise ValueError(f"expected PERIOD:DURATION[:FIRST] with 0 < DURATION < PERIOD, FIRST >= 0, got {text!r}")
+    period, dur = vals[:2]
+    return period, dur, vals[2] if len(vals) == 3 else period - dur
+
+
 def outage_windows(
     t0_ns: int,
     t_end_ns: int,
@@ -52,6 +80,38 @@ def outage_windows(
     return sorted((a, min(b, t_end_ns)) for a, b in wins if a < t_end_ns)
 
 
+def sensor_events(
+    ds: Dataset,
+    outages: list[tuple[float, float]] = (),
+    outage_every: tuple[float, float, float] | None = None,
+) -> tuple[list[tuple[int, int]], list[tuple[str, int]]]:
+    """Which IMU samples and GNSS fixes a run feeds the engine, in order: (windows, events), events being
+    ("imu", k) / ("gnss", k) indices into ds.imu / ds.gnss. IMU samples after the initial-state time up to
+    config.end_t_ns; GNSS fixes after the initial time, outside the outage windows, not after the last IMU
+    sample; a fix goes before the first IMU sample at or after its time. run_replay and the ingest service
+    both take their sequence from here."""
+    t_imu = ds.imu.t_ns
+    t0 = int(ds.initial.t_ns)
+    k0 = int(np.searchsorted(t_imu, t0, side="right"))
+    t_last = int(t_imu[-1] if ds.config.end_t_ns is None else min(t_imu[-1], ds.config.end_t_ns))
+    k1 = int(np.searchsorted(t_imu, t_last, side="right"))
+    windows = outage_windows(t0, t_last, list(outages), outage_every)
+    t_g = ds.gnss.t_ns
+    keep = (t_g > t0) & (t_g <= t_imu[k1 - 1]) if k1 > k0 else np.zeros(len(t_g), dtype=bool)
+    for a, b in windows:
+        keep &= ~((t_g >= a) & (t_g < b))
+    fixes = np.flatnonzero(keep).tolist()
+    before = np.searchsorted(t_imu[k0:k1], t_g[fixes], side="left").tolist()  # IMU position of each fix
+    events: list[tuple[str, int]] = []
+    j, nf = 0, len(fixes)
+    for i, k in enumerate(range(k0, k1)):
+        while j < nf and before[j] <= i:
+            events.append(("gnss", fixes[j]))
+            j += 1
+        events.append(("imu", k))
+    return windows, events
+
+
 def run_replay(
     ds: Dataset,
     outages: list[tuple[float, float]] = (),
@@ -66,33 +126,22 @@ def run_replay(
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     nav = navigator or Navigator(config, ds.initial)
     imu, gnss = ds.imu, ds.gnss
-    t_imu = imu.t_ns
-    k0 = int(np.searchsorted(t_imu, ds.initial.t_ns, side="right"))
-    t_last = t_imu[-1] if ds.config.end_t_ns is None else min(t_imu[-1], ds.config.end_t_ns)
-    k1 = int(np.searchsorted(t_imu, t_last, side="right"))
-    windows = outage_windows(int(ds.initial.t_ns), int(t_last), outages, outage_every)
-    t_g = gnss.t_ns
-    keep = t_g > ds.initial.t_ns
-    for a, b in windows:
-        keep &= ~((t_g >= a) & (t_g < b))
-    fix_idx = np.flatnonzero(keep)
-
-    n = k1 - k0
+    windows, events = sensor_events(ds, outages, outage_every)
+    n = sum(1 for kind, _ in events if kind == "imu")
     t_out = np.empty(n, dtype=np.int64)
     out = np.empty((n, 10))
     std = np.empty((n, 3))
     outage = np.zeros(n, dtype=bool)
     reports: list[AidReport] = []
     dtheta, dvel = imu.dtheta.tolist(), imu.dvel.tolist()
-    t_list = t_imu.tolist()
-    j = 0
+    t_list = imu.t_ns.tolist()
+    i = 0
     wall0 = time.perf_counter()
-    for i, k in enumerate(range(k0, k1)):
-        t = t_list[k]
-        while j < len(fix_idx) and t_g[fix_idx[j]] <= t:
-            nav.on_gnss(gnss.fix_at(int(fix_idx[j])))
-            j += 1
-        nav.on_imu(t, dtheta[k], dvel[k])
+    for kind, k in events:
+        if kind == "gnss":
+            nav.on_gnss(gnss.fix_at(k))
+            continue
+        nav.on_imu(t_list[k], dtheta[k], dvel[k])
         s = nav.state
         t_out[i] = nav.t_ns
         out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)
@@ -105,6 +154,7 @@ def run_replay(
                 if prediction is not None:
                     nav.on_correction(query, *prediction)
         reports.extend(nav.pop_reports())
+        i += 1
     wall = time.perf_counter() - wall0
     return ReplayResult(
         dataset=ds.name,

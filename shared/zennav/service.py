@@ -15,7 +15,7 @@ import signal
 import sys
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 log = logging.getLogger("zennav.service")
 
@@ -80,6 +80,24 @@ class ServiceRunner:
         self._hb.start()
         self.log.info("%s up (%s%s) on vehicle %s, zid %s", self.name, state, f": {detail}" if detail else "",
                       self.keys.vehicle, self.bus.zid)
+
+    def fail(self, detail: str, code: int = 2) -> int:
+        """Log one error line, publish the "error" state and close: the exit code of a main() that cannot start
+        (e.g. a bad parameter file)."""
+        self.log.error("%s", detail)
+        self.set_state("error", detail)
+        self.close()
+        return code
+
+    def stream_start_of(self, src: str) -> dict | None:
+        """The stream_start of the sensor stream of ``src``, asked of the ingest's latest value on the stream key
+        (a late joiner's question, zennav.stream); None when no ingest answers with it."""
+        try:
+            replies = self.bus.get_latest(self.keys.stream(), timeout=1.0)
+        except Exception as e:  # session closing, no route: the follower asks again later
+            self.log.debug("stream start query failed: %s", e)
+            return None
+        return next((m for _k, m in replies if m["schema"] == "stream_start" and m["src"] == src), None)
 
     def set_state(self, state: str, detail: str = "") -> None:
         self.state, self.detail = state, detail

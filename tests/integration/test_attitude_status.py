@@ -23,7 +23,7 @@ def test_attitude_service_equals_core_batch_with_ins_rate_and_monitor_shows_it(c
     AdaptiveComplementaryFilter(deploy/attitude.yaml).batch over the same IMU messages with the published
     omega_in_n, bit for bit; nothing lost; the monitor shows the attitude (live and as a late joiner)."""
     from zennav.attitude.complementary import AdaptiveComplementaryFilter
-    from zennav.services.attitude import load_config
+    from zennav.params import load_attitude_params as load_config
 
     k = cluster.keys
     imu = Collector(cluster.bus, k.imu())
@@ -80,16 +80,21 @@ def test_attitude_service_equals_core_batch_with_ins_rate_and_monitor_shows_it(c
 
 
 def test_monitor_shows_alignment_coarse_fine_aligned_and_live_r(cluster):
-    """Heading unknown at the start, adaptive R on (ingest --heading-unknown --adaptive-r), 100 s of the simulated
+    """Heading unknown at the start (ingest --heading-unknown), adaptive R on (the ins's parameter file: deploy/ins.yaml
+    with adaptive_r: true), 100 s of the simulated
     drive at 20x real time: the monitor's JSON shows the alignment state going coarse -> fine -> aligned (in
     motion, heading 1-sigma below 0.5 deg), adaptive R on and the live R estimate per GNSS source with its
     ratio to the reported R and branch, plus the GNSS state and innovation test ratios."""
     k = cluster.keys
     status = Collector(cluster.bus, k.nav_status(), channel="ring")
-    cluster.service("ins")
+    from zennav.params import INS_PARAMS
+
+    params = cluster.tmp / "ins-adaptive.yaml"
+    params.write_text(INS_PARAMS.read_text().replace("adaptive_r: false", "adaptive_r: true"))
+    cluster.service("ins", "--params", str(params))
     mon = cluster.service("monitor", "--json", "--interval", "0.1")
     ing = cluster.service("ingest", "sim:car", "-o", "duration_s=100", "--speed", "20", "--heading-unknown",
-                          "--adaptive-r", wait=False)
+                          wait=False)
     status.wait(lambda c: any(m["stream"].get("done") for m in c.msgs()), 60, "ins to finish the stream")
     assert ing.wait(60) == 0
 

@@ -12,41 +12,27 @@ import pytest
 
 from zennav import messages as M
 from zennav.attitude.complementary import AdaptiveComplementaryFilter
-from zennav.services.attitude import AttitudeNode, euler_of, load_config, omega_in_n_of
+from zennav.params import load_attitude_params as load_config
+from zennav.services.attitude import AttitudeNode, omega_in_n_of
 
 K = M.Keys("car")
 log = logging.getLogger("test")
 
 
-def _stream(duration_s: float, heading_unknown: bool = False, adaptive_r: bool | None = None):
-    """The messages ingest publishes for sim:car (with header fields), in cseq order."""
+def _stream(duration_s: float, heading_unknown: bool = False):
+    """The messages ingest publishes for sim:car (zennav.stream.stream_messages, with header fields), as
+    (key, message) in cseq order."""
     from zennav.datasets.registry import load_dataset
-    from zennav.services.ingest import sensor_events
+    from zennav.replay import sensor_events
+    from zennav.stream import stream_messages
 
     ds = load_dataset("sim:car", duration_s=duration_s)
     if heading_unknown:
         ds.initial = replace(ds.initial, heading_known=False)
-    if adaptive_r is not None:
-        ds.config = ds.config.with_(adaptive_r=adaptive_r)
-    _, events = sensor_events(ds)
-    msgs = [M.make("stream_start", int(ds.initial.t_ns), cseq=0, dataset=ds.name,
-                   config=M.dataclass_to_map(ds.config), initial=M.dataclass_to_map(ds.initial),
-                   counts={}, outages=[])]
-    prev = int(ds.initial.t_ns)
-    for n, (kind, i) in enumerate(events, 1):
-        if kind == "imu":
-            t = int(ds.imu.t_ns[i])
-            msgs.append(M.imu_msg(t, ds.imu.dtheta[i], ds.imu.dvel[i], t - prev, n))
-            prev = t
-        else:
-            msgs.append(M.gnss_msg(ds.gnss.fix_at(i), n))
-    counts = {k: sum(1 for e in events if e[0] == k) for k in ("imu", "gnss")}
-    msgs[0]["counts"] = counts
-    msgs.append(M.make("stream_end", prev, cseq=len(msgs), counts=counts, last_cseq=len(msgs)))
-    for m in msgs:
-        m.update(src="ingest.x", seq=0, pub_ns=0)
-    key = {"imu": K.imu(), "gnss": K.gnss(), "stream_start": K.stream(), "stream_end": K.stream()}
-    return [(key[m["schema"]], m) for m in msgs]
+    windows, events = sensor_events(ds)
+    key = {"imu": K.imu(), "gnss": K.gnss(), "stream": K.stream()}
+    return [(key[kind], {**m, "src": "ingest.x", "seq": 0, "pub_ns": 0})
+            for kind, m in stream_messages(ds, windows, events)]
 
 
 def _reference(msgs, cfg, w_in):
@@ -78,7 +64,7 @@ def test_attitude_node_equals_core_batch_bit_for_bit_in_any_arrival_order():
             node.on_solution(sol)
         node.on_sensor(key, m)
     imu, ref = _reference(msgs, cfg, np.array([o["omega_in_n"] for o in out]))
-    assert len(out) == len(imu) == 4000 and node.done
+    assert len(out) == len(imu) == 4000 and node.follower.done
     assert [o["t_ns"] for o in out] == [m["t_ns"] for m in imu]
     assert np.array_equal(np.array([o["q_nb"] for o in out]), ref.q_nb)
     assert np.array_equal(np.array([o["gyro_bias"] for o in out]), ref.bias_b)
@@ -88,7 +74,7 @@ def test_attitude_node_equals_core_batch_bit_for_bit_in_any_arrival_order():
     assert 0 < used.sum() < len(out) and np.array_equal(w[used][0], omega_in_n_of(sol["llh"], sol["v_n"]))
     assert np.linalg.norm(w[used][0]) == pytest.approx(7.29e-5, rel=0.05)
     assert node.counts["rate_applied"] == used.sum()
-    assert out[-1]["euler"] == euler_of(out[-1]["q_nb"])
+    assert out[-1]["euler"] == M.euler_list(*out[-1]["q_nb"])
     v = M.Validator()
     for o in out[:50]:
         assert v.check(K.attitude(), M.encode({**o, "src": "a", "seq": 0, "pub_ns": 0}))[0] is not None
@@ -142,21 +128,27 @@ def test_attitude_node_takes_imu_batches_as_their_samples():
 
 
 def test_attitude_node_late_join_and_without_solution_zero_rate():
+    """Started after the stream began: joins at the first IMU sample it receives, with the stream's start asked
+    for (fetch_start, the ingest's latest value on the bus), and levels from there."""
     cfg, _ = load_config()
     msgs = _stream(5.0)
     out = []
-    node = AttitudeNode(out.append, log, cfg, K.imu())
+    asked = []
+    node = AttitudeNode(out.append, log, cfg, K.imu(), fetch_start=lambda src: asked.append(src) or msgs[0][1])
+    first = next(i for i in range(101, len(msgs)) if msgs[i][1]["schema"] == "imu")
     for key, m in msgs[101:]:  # stream_start and the first 100 messages missed
         node.on_sensor(key, m)
-    assert node.counts["late_join"] == 1 and node.done and len(out) > 800
+    assert asked == ["ingest.x"] and node.follower.counts["late_join"] == 1 and node.follower.done
+    n_imu = sum(m["schema"] == "imu" for _, m in msgs[first:])
+    assert len(out) == n_imu and out[0]["t_ns"] == msgs[first][1]["t_ns"]
     assert all(o["omega_in_n"] == [0.0, 0.0, 0.0] for o in out)
 
 
-def _ins_status(duration_s, **kw):
+def _ins_status(duration_s, adaptive_r: bool = False, **kw):
     from zennav.services.ins import InsNode
 
     out = []
-    node = InsNode(lambda kind, m: out.append((kind, m)), log)
+    node = InsNode(lambda kind, m: out.append((kind, m)), log, {"adaptive_r": adaptive_r})
     for key, m in _stream(duration_s, **kw):
         node.on_sensor(key, m)
     return [m for kind, m in out if kind == "status"]
@@ -248,7 +240,7 @@ def test_ins_takes_the_attitude_tilt_only_in_coarse_alignment_at_rest_unrejected
     assert node.on_attitude({**att, "weight": 1.0}, np.radians(1.0))
     al = nav.status()["alignment"]
     assert al["tilt_source"] == "attitude_source" and node.attitude_taken == 1
-    roll, pitch, _ = euler_of(nav.state.q_nb.tolist())
+    roll, pitch, _ = M.euler_list(*nav.state.q_nb.tolist())
     assert roll == pytest.approx(0.01, abs=1e-9) and pitch == pytest.approx(-0.02, abs=1e-9)
 
 

@@ -210,25 +210,12 @@ def test_sequence_merger_orders_holds_dedups_and_skips_gaps():
 
 
 def _stream_messages(ds, outages=()):
-    from zennav.services.ingest import sensor_events
+    """The messages the ingest publishes for ds (zennav.stream.stream_messages), with their headers."""
+    from zennav.replay import sensor_events
+    from zennav.stream import stream_messages
 
     windows, events = sensor_events(ds, outages)
-    msgs = [M.make("stream_start", int(ds.initial.t_ns), cseq=0, dataset=ds.name,
-                   config=M.dataclass_to_map(ds.config), initial=M.dataclass_to_map(ds.initial),
-                   counts={}, outages=[list(w) for w in windows])]
-    prev = int(ds.initial.t_ns)
-    for kind, idx in events:
-        c = len(msgs)
-        if kind == "imu":
-            t = int(ds.imu.t_ns[idx])
-            msgs.append(M.imu_msg(t, ds.imu.dtheta[idx], ds.imu.dvel[idx], t - prev, c))
-            prev = t
-        else:
-            msgs.append(M.gnss_msg(ds.gnss.fix_at(idx), c))
-    msgs.append(M.make("stream_end", prev, cseq=len(msgs), counts={"imu": sum(e[0] == "imu" for e in events),
-                                                                  "gnss": sum(e[0] == "gnss" for e in events)},
-                       last_cseq=len(msgs)))
-    return [hdr(m, "ingest", i) for i, m in enumerate(msgs)]
+    return [hdr(m, "ingest", i) for i, (_kind, m) in enumerate(stream_messages(ds, windows, events))]
 
 
 @pytest.mark.parametrize("shuffle", [False, True])
@@ -260,7 +247,7 @@ def test_ins_node_over_messages_equals_replay(shuffle):
         node.on_sensor(key, dec)
     ref = run_replay(ds, outages=outages)
     sols = out["solution"]
-    assert len(sols) == len(ref.t_ns) and node.done
+    assert len(sols) == len(ref.t_ns) and node.follower.done
     assert np.array_equal([s["t_ns"] for s in sols], ref.t_ns)
     assert np.array_equal(np.array([s["llh"] for s in sols]), ref.llh)
     assert np.array_equal(np.array([s["v_n"] for s in sols]), ref.v_n)
@@ -268,12 +255,11 @@ def test_ins_node_over_messages_equals_replay(shuffle):
     assert [(a["source"], a["t_ns"], a["fused"]) for a in out["aid"]] == \
         [(r.source, r.t_ns, r.fused) for r in ref.reports]
     assert out["status"][-1]["stream"]["done"] and out["status"][-1]["imu_count"] == len(ref.t_ns)
-    assert node.merger.counts.get("gap", 0) == 0 and node.merger.counts.get("duplicate", 0) == 0
+    assert node.follower.merger.counts.get("gap", 0) == 0 and node.follower.merger.counts.get("duplicate", 0) == 0
 
 
 def test_solution_fast_path_matches_core_solution():
     from zennav.nav.navigator import Navigator
-    from zennav.services.ins import solution_msg
     from zennav.sim.scenarios import make_dataset
 
     ds = make_dataset("car", duration_s=10.0, seed=2)
@@ -283,7 +269,8 @@ def test_solution_fast_path_matches_core_solution():
             continue
         ok = nav.on_imu(int(ds.imu.t_ns[k]), ds.imu.dtheta[k], ds.imu.dvel[k])
         if k % 97 == 0:
-            a = solution_msg(nav, ok, k, 0)
+            assert ok
+            a = M.nav_solution_msg_of(nav, k, 0)
             b = M.nav_solution_msg(nav.solution(), k, 0)
             for f in b:
                 if isinstance(b[f], list):

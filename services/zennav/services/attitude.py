@@ -11,8 +11,8 @@ The core is ``AdaptiveComplementaryFilter`` with the gains of deploy/attitude.ya
 once by ``ComplementaryConfig``; ``--config`` picks another file). IMU increments become rates over the
 sample's interval: ``omega_ib_b = dtheta / dt``, ``f_b = dvel / dt`` with ``dt = dt_ns / 1e9``.
 
-Order and exactness. Sensor messages are consumed strictly in the ingest's ``cseq`` order (SequenceMerger,
-only from the live stream's source), as the ins service does. Until the filter is levelled the samples of
+Order and exactness. Sensor messages are consumed strictly in the ingest's ``cseq`` order, through the same
+zennav.stream.StreamFollower as the ins (one stream, one late-join policy). Until the filter is levelled the samples of
 the first ``level_time_s`` are held and then run as one ``batch`` (levelling from their mean, as the batch
 API does), then every sample is one ``step``; every sample is run with ``omega_in_n`` given (zeros when
 none), so the published stream equals ``AdaptiveComplementaryFilter(cfg).batch(omega, f, dt=dt,
@@ -27,55 +27,23 @@ default limit of 60 s leaves room for the ins to lag behind this service when a 
 as possible (each consumer's queue holds about 40 s of 200 Hz data). The value applied is published with each
 sample, so a consumer can reproduce the output whatever the arrival timing of the solutions was.
 
-A service started in the middle of a stream (restart) joins it at the first sensor message it receives
-(counted as ``late_join``) and levels from there.
+A service started in the middle of a stream (restart) joins it at the first IMU sample it receives (counted
+``late_join``, see zennav.stream) and levels from there.
 """
 from __future__ import annotations
 
 import argparse
-import math
-import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from zennav import messages as M
+from zennav.params import ParamError, load_attitude_params
 from zennav.service import ServiceRunner, add_bus_args
+from zennav.stream import StreamFollower
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "deploy" / "attitude.yaml"
 ZERO3 = (0.0, 0.0, 0.0)
-
-
-def load_config(path: str | os.PathLike | None = None):
-    """ComplementaryConfig from a parameter file (``attitude:`` mapping, human units). path None: the
-    ZENNAV_ATTITUDE_CONFIG file, else deploy/attitude.yaml, else the built-in defaults (same values)."""
-    import yaml
-
-    from zennav.attitude.complementary import ComplementaryConfig
-
-    explicit = path or os.environ.get("ZENNAV_ATTITUDE_CONFIG")
-    p = Path(explicit) if explicit else DEFAULT_CONFIG
-    if not p.exists():
-        if explicit:
-            raise FileNotFoundError(f"attitude parameter file {p} not found")
-        return ComplementaryConfig(), "built-in defaults"
-    doc = yaml.safe_load(p.read_text()) or {}
-    if not isinstance(doc, dict) or not isinstance(doc.get("attitude"), dict):
-        raise ValueError(f"{p}: needs an 'attitude:' mapping")
-    return ComplementaryConfig.from_mapping(doc["attitude"]), str(p)
-
-
-def euler_of(q) -> list:
-    """(roll, pitch, yaw) [rad] of q_nb, the same float operations as zennav.nav.rotation.quat_to_euler."""
-    q0, q1, q2, q3 = q
-    c20 = 2 * (q1 * q3 - q0 * q2)
-    c21 = 2 * (q2 * q3 + q0 * q1)
-    c22 = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
-    c10 = 2 * (q1 * q2 + q0 * q3)
-    c00 = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
-    return [math.atan2(c21, c22), math.atan2(-c20, math.hypot(c21, c22)), math.atan2(c10, c00)]
 
 
 def omega_in_n_of(llh, v_n) -> tuple:
@@ -91,7 +59,8 @@ class AttitudeNode:
     """The transport-free part of the attitude service: feed validated sensor messages with ``on_sensor`` and
     nav solutions with ``on_solution``; it calls ``publish(msg)`` with one attitude message per IMU sample."""
 
-    def __init__(self, publish, log, config, imu_key: str, rate_max_age_s: float = 60.0, on_state=None):
+    def __init__(self, publish, log, config, imu_key: str, rate_max_age_s: float = 60.0, on_state=None,
+                 fetch_start=None):
         self.publish = publish
         self.log = log
         self.on_state = on_state or (lambda detail: None)
@@ -99,75 +68,44 @@ class AttitudeNode:
         self.imu_key = imu_key
         self.rate_max_age_ns = int(rate_max_age_s * 1e9)
         self.filter = None
-        self.src: str | None = None
-        self.dataset = ""
-        self.merger: M.SequenceMerger | None = None
-        self.done = False
+        self.follower = StreamFollower(self._start, self._sample, self._end, fetch_start, log)
+        self.on_sensor = self.follower.on_message  # every sensor message (GNSS too: the cseq merge needs them)
         self._levelled = False
         self._held: list = []  # (t_ns, dt, omega, f, w_in) until levelled
         self._held_s = 0.0
         self._rate: tuple | None = None  # (t_ns, omega_in_n) of the latest nav solution
-        self.counts = {"imu": 0, "published": 0, "rate_applied": 0, "late_join": 0, "foreign_source": 0,
-                       "duplicate_start": 0, "bad_dt": 0, "solutions": 0}
+        self.counts = {"imu": 0, "published": 0, "rate_applied": 0, "bad_dt": 0, "solutions": 0}
         self.cost_s = 0.0  # time spent in the filter and building the messages [s]
         self.publish_s = 0.0  # time spent in publish (encode + zenoh put, incl. back-pressure waits) [s]
-
-    # ------------------------------------------------------------------ input
-    def on_sensor(self, key: str, msg: dict) -> None:
-        schema = msg["schema"]
-        if schema == "stream_start":
-            if msg["src"] == self.src:
-                self.counts["duplicate_start"] += 1
-                return
-            self._start(msg["src"], msg["cseq"] + 1, msg["dataset"])
-            return
-        if msg["src"] != self.src:
-            if self.src is None or self.done:  # joined in the middle of a stream (e.g. after a restart)
-                self.counts["late_join"] += 1
-                self.log.warning("joining stream from %s at cseq %d (its start was missed)", msg["src"], msg["cseq"])
-                self._start(msg["src"], msg["cseq"], "(joined late)")
-            else:
-                self.counts["foreign_source"] += 1
-                return
-        for m in M.samples(msg):  # an imu_batch: each of its samples
-            self.merger.push(m["cseq"], (key, m), self._consume)
 
     def on_solution(self, msg: dict) -> None:
         """nav_solution -> omega_in_n for the IMU samples that follow."""
         self.counts["solutions"] += 1
         self._rate = (msg["t_ns"], omega_in_n_of(msg["llh"], msg["v_n"]))
 
-    def _start(self, src: str, next_cseq: int, dataset: str) -> None:
+    def _start(self, start: dict, join: dict | None) -> None:
         from zennav.attitude.complementary import AdaptiveComplementaryFilter
 
-        if self.src is not None and src != self.src:
-            self.log.info("new stream %s from %s replaces %s", dataset, src, self.src)
         self.filter = AdaptiveComplementaryFilter(self.config)
-        self.src, self.dataset, self.done = src, dataset, False
-        self.merger = M.SequenceMerger(next_cseq)
         self._levelled, self._held, self._held_s = False, [], 0.0
         self._rate = None
-        self.log.info("stream %s from %s: filter reset", dataset, src)
-        self.on_state(f"filtering stream {dataset} from {src}")
+        self.log.info("stream %s from %s: filter reset", start["dataset"], start["src"])
+        self.on_state(f"filtering stream {start['dataset']} from {start['src']}")
 
-    def _consume(self, item) -> None:
-        key, msg = item
-        schema = msg["schema"]
-        if schema == "imu":
-            if key == self.imu_key:
-                self._imu(msg)
-        elif schema == "stream_end":
-            self.merger.flush(self._consume)
-            if self._held:  # a stream shorter than the levelling time: level from what there is
-                self._run_held()
-            self.done = True
-            n = self.counts["imu"]
-            self.log.info("end of stream %s: %d IMU, %d attitudes published, omega_in_n applied to %d; "
-                          "%.2f us per sample in the filter + message, %.2f us publishing; merger %s", self.dataset,
-                          n, self.counts["published"], self.counts["rate_applied"], self.cost_us(),
-                          1e6 * self.publish_s / max(n, 1), dict(self.merger.counts))
-            self.on_state(f"stream {self.dataset} done: {self.counts['published']} attitudes, "
-                          f"{self.cost_us():.1f} us per sample")
+    def _sample(self, key: str, msg: dict) -> None:
+        if key == self.imu_key and msg["schema"] == "imu":
+            self._imu(msg)
+
+    def _end(self, msg: dict) -> None:
+        if self._held:  # a stream shorter than the levelling time: level from what there is
+            self._run_held()
+        n = self.counts["imu"]
+        self.log.info("end of stream %s: %d IMU, %d attitudes published, omega_in_n applied to %d; "
+                      "%.2f us per sample in the filter + message, %.2f us publishing; stream %s",
+                      self.follower.dataset, n, self.counts["published"], self.counts["rate_applied"],
+                      self.cost_us(), 1e6 * self.publish_s / max(n, 1), self.follower.status())
+        self.on_state(f"stream {self.follower.dataset} done: {self.counts['published']} attitudes, "
+                      f"{self.cost_us():.1f} us per sample")
 
     def _imu(self, msg: dict) -> None:
         t0 = time.perf_counter()
@@ -206,8 +144,7 @@ class AttitudeNode:
             self._emit(h[0], q[i], bias[i], w[i], h[4])
 
     def _emit(self, t_ns: int, q: list, bias: list, weight: float, w_in) -> None:
-        msg = M.make("attitude", t_ns, q_nb=q, euler=euler_of(q), gyro_bias=bias, weight=float(weight),
-                     omega_in_n=list(w_in))
+        msg = M.attitude_msg(t_ns, q, bias, weight, w_in)
         t0 = time.perf_counter()
         self.publish(msg)
         self.publish_s += time.perf_counter() - t0
@@ -219,8 +156,8 @@ class AttitudeNode:
 
     def counters(self) -> dict:
         n = max(self.counts["imu"], 1)
-        return {**self.counts, "cost_us_per_sample": round(self.cost_us(), 2),
-                "publish_us_per_sample": round(1e6 * self.publish_s / n, 2), "done": int(self.done)}
+        return {**self.counts, **self.follower.counts, "cost_us_per_sample": round(self.cost_us(), 2),
+                "publish_us_per_sample": round(1e6 * self.publish_s / n, 2), "done": int(self.follower.done)}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -238,16 +175,13 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     run = ServiceRunner("attitude", args)
     try:
-        config, origin = load_config(args.config)
-    except Exception as e:
-        run.log.error("bad attitude parameters: %s", e)
-        run.set_state("error", f"bad attitude parameters: {e}")
-        run.close()
-        return 2
+        config, origin = load_attitude_params(args.config)
+    except (ParamError, ValueError, OSError) as e:
+        return run.fail(f"bad attitude parameters: {e}")
     k = run.keys
     pub = run.bus.publisher(k.attitude())
     node = AttitudeNode(pub.put, run.log, config, k.imu(args.imu_id), args.rate_max_age,
-                        on_state=lambda d: setattr(run, "detail", d))
+                        on_state=lambda d: setattr(run, "detail", d), fetch_start=run.stream_start_of)
     run.log.info("gains from %s: k_p %.4g 1/s, k_i %.4g 1/s^2", origin, *config.gains())
     run.counters = node.counters
     run.bus.subscribe(k.nav_solution(), lambda key, msg, recv_ns: node.on_solution(msg), channel="ring",

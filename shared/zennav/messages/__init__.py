@@ -44,7 +44,18 @@ from .learn import (
     params_checksum,
     paramset_of,
 )
-from .nav import ALIGN_STATES, aid_report_msg, check_nav_status, nav_solution_msg
+from .nav import (
+    ALIGN_STATES,
+    aid_report_msg,
+    alignment_map,
+    attitude_msg,
+    check_nav_status,
+    euler_list,
+    nav_solution_msg,
+    nav_solution_msg_of,
+    nav_status_msg,
+    noise_map,
+)
 from .schema import (
     ANY,
     BOOL,
@@ -68,12 +79,13 @@ from .status import SERVICE_STATES, service_status_msg
 from .validate import Validator, check_finite_deep, check_value, validate_map
 
 __all__ = [
-    "ALIGN_STATES", "ALIVE", "ANY", "BOOL", "CHUNK", "ENCODING", "FLOAT", "FLOATS", "HEADER", "INT", "INTS", "MAP",
-    "OPT", "PARAMSET_FORMAT", "QoS", "ROOT", "SCHEMAS", "SENSOR", "SERVICE_STATES", "STR", "STREAMS",
-    "STREAM_BY_NAME", "STRS", "Keys", "Schema", "SequenceMerger", "Stream", "VEC", "ValidationError", "Validator",
-    "aid_report_msg", "array_map", "check_chunk", "check_finite_deep", "check_imu_batch", "check_nav_status",
-    "check_value", "correction_msg", "dataclass_to_map", "decode", "define", "encode", "floats", "gnss_fix",
-    "gnss_msg", "imu_batch_msg", "imu_msg", "learn_query_msg", "learn_sample_msg", "make", "map_array",
-    "map_to_dataclass", "model_params_msg", "nav_solution_msg", "params_checksum", "paramset_of", "pyval",
-    "qos_of", "qos_table", "samples", "service_status_msg", "stream_of", "validate_map",
+    "aid_report_msg", "ALIGN_STATES", "alignment_map", "ALIVE", "ANY", "array_map", "attitude_msg", "BOOL",
+    "check_chunk", "check_finite_deep", "check_imu_batch", "check_nav_status", "check_value", "CHUNK",
+    "correction_msg", "dataclass_to_map", "decode", "define", "encode", "ENCODING", "euler_list", "FLOAT",
+    "FLOATS", "floats", "gnss_fix", "gnss_msg", "HEADER", "imu_batch_msg", "imu_msg", "INT", "INTS", "Keys",
+    "learn_query_msg", "learn_sample_msg", "make", "MAP", "map_array", "map_to_dataclass", "model_params_msg",
+    "nav_solution_msg", "nav_solution_msg_of", "nav_status_msg", "noise_map", "OPT", "params_checksum",
+    "PARAMSET_FORMAT", "paramset_of", "pyval", "QoS", "qos_of", "qos_table", "ROOT", "samples", "Schema",
+    "SCHEMAS", "SENSOR", "SequenceMerger", "SERVICE_STATES", "service_status_msg", "STR", "Stream",
+    "STREAM_BY_NAME", "stream_of", "STREAMS", "STRS", "validate_map", "ValidationError", "Validator", "VEC",
 ]

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .codec import floats, make
 from .keys import CHUNK
 from .schema import BOOL, FLOAT, FLOATS, INT, MAP, OPT, STR, STRS, VEC, define
@@ -98,3 +100,97 @@ def aid_report_msg(rep) -> dict:
     if faults is not None:
         msg["faults"] = [str(f) for f in faults]
     return msg
+
+
+def euler_list(q0: float, q1: float, q2: float, q3: float) -> list:
+    """(roll, pitch, yaw) [rad] of q_nb (scalar first): the same float operations as
+    zennav.nav.rotation.quat_to_euler, without numpy (hot path: one call per IMU sample)."""
+    c20 = 2 * (q1 * q3 - q0 * q2)
+    c21 = 2 * (q2 * q3 + q0 * q1)
+    c22 = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+    c10 = 2 * (q1 * q2 + q0 * q3)
+    c00 = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
+    return [math.atan2(c21, c22), math.atan2(-c20, math.hypot(c21, c22)), math.atan2(c10, c00)]
+
+
+_LIST_CACHE: dict[int, tuple] = {}
+
+
+def _as_list(a) -> list:
+    """floats(a), cached by object identity: the engine replaces (never mutates) its bias lists and std arrays
+    when they change, so most samples reuse the previous conversion."""
+    hit = _LIST_CACHE.get(id(a))
+    if hit is not None and hit[0] is a:
+        return hit[1]
+    out = floats(a)
+    if len(_LIST_CACHE) > 64:
+        _LIST_CACHE.clear()
+    _LIST_CACHE[id(a)] = (a, out)
+    return out
+
+
+def nav_solution_msg_of(nav, imu_cseq: int = -1, imu_pub_ns: int = 0) -> dict:
+    """nav_solution of a Navigator's current state, the fast path of the ins's hot loop (>= 20 kHz): reads the
+    state's floats directly (the same values as ``nav_solution_msg(nav.solution())``,
+    tests/unit/test_messages.py checks it)."""
+    s = nav.state
+    return make("nav_solution", nav.t_ns, llh=[s.lat, s.lon, s.h], v_n=[s.vn, s.ve, s.vd],
+                q_nb=[s.q0, s.q1, s.q2, s.q3], euler=euler_list(s.q0, s.q1, s.q2, s.q3),
+                gyro_bias=_as_list(nav.gyro_bias), accel_bias=_as_list(nav.accel_bias),
+                std_pos_ned=_as_list(nav.std_pos_ned), std_v_n=_as_list(nav.std_v_n),
+                std_euler=_as_list(nav.std_att), gnss_state=str(nav.gnss_state), imu_cseq=int(imu_cseq),
+                imu_pub_ns=int(imu_pub_ns))
+
+
+def attitude_msg(t_ns: int, q_nb: list, gyro_bias: list, weight: float, omega_in_n) -> dict:
+    """attitude message of one filter output: q_nb (scalar first), gyro bias [rad/s], rejection weight, and the
+    omega_in_n [rad/s, NED] applied."""
+    return make("attitude", t_ns, q_nb=q_nb, euler=euler_list(*q_nb), gyro_bias=gyro_bias, weight=float(weight),
+                omega_in_n=list(omega_in_n))
+
+
+def _finite(x: float, default: float) -> float:
+    x = float(x)
+    return x if math.isfinite(x) else default
+
+
+def alignment_map(al: dict) -> dict:
+    """Navigator.status()["alignment"] -> the nav_status ``alignment`` map (see check_nav_status)."""
+    return {"state": str(al["state"]), "method": str(al.get("method") or ""),
+            "heading_std_rad": _finite(al["heading_std_rad"], 1e9),
+            "times_ns": {str(k): int(v) for k, v in al.get("times_ns", {}).items()},
+            "tilt_source": str(al.get("tilt_source") or ""), "gyrocompass": str(al.get("gyrocompass") or "")}
+
+
+def noise_map(noise: dict) -> dict:
+    """Navigator.status()["measurement_noise"] -> per source {R_diag, ratio, branch[, k, inflate, fading]}: the live
+    R diagonal [m^2 or (m/s)^2], its ratio to the reported R (None when R is not adapted) and the seed-001 branch
+    taken last ('inflate' / 'fading'; 'fixed' when adaptive R is off)."""
+    out = {}
+    for src, r in noise.items():
+        e: dict = {"R_diag": [float(x) for x in np.diag(np.asarray(r["R"], dtype=float))]}
+        if "scale_diag" in r:
+            e.update(ratio=[float(x) for x in r["scale_diag"]], branch=str(r.get("branch") or "none"),
+                     **{k: int(r[k]) for k in ("k", "inflate", "fading") if k in r})
+        else:
+            e.update(ratio=None, branch="fixed")
+        out[str(src)] = e
+    return out
+
+
+def nav_status_msg(t_ns: int, engine_status: dict | None, stream: dict, rejected: dict, imu_count: int,
+                   gnss_count: int, model: dict) -> dict:
+    """nav_status of the ins: the engine's status() (None before a stream: GNSS state 'unknown'), the stream
+    progress (zennav.stream.StreamFollower.status plus the ins's own counts), rejections and drops by reason,
+    the samples consumed and the learning link's model map."""
+    st = engine_status or {"counters": {}, "gnss_state": "unknown"}
+    extra: dict = {}
+    if "alignment" in st:
+        extra["alignment"] = alignment_map(st["alignment"])
+    if "measurement_noise" in st:
+        extra["adaptive_r"] = bool(st.get("adaptive_r", False))
+        extra["measurement_noise"] = noise_map(st["measurement_noise"])
+    return make("nav_status", t_ns, gnss_state=str(st.get("gnss_state", "unknown")),
+                counters={str(k): int(v) for k, v in st.get("counters", {}).items()},
+                rejected={str(k): int(v) for k, v in rejected.items()}, imu_count=int(imu_count),
+                gnss_count=int(gnss_count), stream=stream, model=model, **extra)

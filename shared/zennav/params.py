@@ -1,0 +1,221 @@
+"""Parameter files in human units (deploy/ins.yaml, deploy/attitude.yaml), converted to SI once, here.
+
+The ins's FILTER settings (gates, floors, outage and gate-reset times, alignment limits, adaptive R, covariance
+interval, the engine's learning settings) live in ``deploy/ins.yaml``: every value carries its unit beside it
+(``pos_std_floor_m: 0.05 m``, ``align_course_std: 2.0 deg``; probabilities, ratios and counts are plain
+numbers). What describes the sensors and the run (IMU noise model, GNSS lever arm, start/end times) is not a
+filter setting: it comes with the data (the dataset loaders; over the bus in ``stream_start``), see
+``SENSOR_FIELDS``. ``learning`` (on/off) is the ins's ``--learning`` / replay's ``--compensation``.
+
+``nav_config(sensor, filter_params)`` puts the two together into the ``NavConfig`` the engine runs; the ins
+service and ``zennav replay`` both read the same file (default ``deploy/ins.yaml``), and the file's values
+equal NavConfig's defaults (tests/unit/test_params.py ties them), so code that builds a NavConfig from a
+loader alone runs the same filter.
+
+Errors (unknown keys, a unit that is not the expected one, a value that is not a number) raise ``ParamError``
+with one line ``file:line: section.key: message``.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+DEPLOY_DIR = Path(__file__).resolve().parents[2] / "deploy"
+INS_PARAMS = DEPLOY_DIR / "ins.yaml"
+ATTITUDE_PARAMS = DEPLOY_DIR / "attitude.yaml"
+
+SENSOR_FIELDS = ("imu_noise", "lever_arm_b", "start_t_ns", "end_t_ns")  # travel with the data (stream_start)
+SERVICE_FIELDS = ("learning",)  # set by the ins's --learning / replay's --compensation
+
+
+class ParamError(ValueError):
+    """A parameter file error: one line, ``file:line: section.key: message``."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One filter setting: its section in the file, the human unit written beside the value, the kind of
+    value ("float", "int", "bool", "fix": a FixType name) and the factor to SI (deg -> rad)."""
+
+    section: str
+    unit: str
+    kind: str = "float"
+    to_si: float = 1.0
+
+
+_DEG = math.pi / 180.0
+
+FILTER: dict[str, Param] = {
+    # GNSS input checks and the update gate
+    "gate_probability": Param("gnss", ""),
+    "min_fix": Param("gnss", "", "fix"),
+    "min_sats": Param("gnss", "", "int"),
+    "max_std_m": Param("gnss", "m"),
+    "max_jump_m": Param("gnss", "m"),
+    "pos_std_floor_m": Param("gnss", "m"),
+    "vel_std_floor_mps": Param("gnss", "m/s"),
+    "use_gnss_velocity": Param("gnss", "", "bool"),
+    # outage declaration and recovery
+    "outage_timeout_s": Param("outage", "s"),
+    "gate_reset_s": Param("outage", "s"),
+    "reacquire_fixes": Param("outage", "", "int"),
+    # covariance propagation
+    "cov_interval_s": Param("covariance", "s"),
+    # alignment
+    "align_min_speed_mps": Param("alignment", "m/s"),
+    "align_course_std": Param("alignment", "deg", to_si=_DEG),
+    "align_tilt_std": Param("alignment", "deg", to_si=_DEG),
+    "align_still_speed_mps": Param("alignment", "m/s"),
+    "align_level_s": Param("alignment", "s"),
+    "align_gyrocompass_s": Param("alignment", "s"),
+    "align_max_heading_std": Param("alignment", "deg", to_si=_DEG),
+    "align_heading_std": Param("alignment", "deg", to_si=_DEG),
+    # adaptive measurement noise (seed 001)
+    "adaptive_r": Param("adaptive_r", "", "bool"),
+    "adaptive_window": Param("adaptive_r", "", "int"),
+    "adaptive_forgetting": Param("adaptive_r", ""),
+    "adaptive_test_probability": Param("adaptive_r", ""),
+    "adaptive_floor": Param("adaptive_r", ""),
+    "adaptive_ceiling": Param("adaptive_r", ""),
+    # the engine's side of learned compensation
+    "learn_after_s": Param("learning", "s"),
+    "learn_horizon_s": Param("learning", "s"),
+    "learn_answer_max_age_s": Param("learning", "s"),
+}
+
+
+def load_filter_params(path: str | os.PathLike | None = None) -> dict:
+    """{NavConfig field: SI value} from an ins parameter file (``ins:`` mapping of sections). path None:
+    deploy/ins.yaml, or NavConfig's defaults when the package is installed without deploy/. A partial file
+    leaves the other settings at NavConfig's defaults."""
+    import yaml
+
+    p = Path(path) if path else INS_PARAMS
+    if not p.exists():
+        if path:
+            raise ParamError(f"{p}: ins parameter file not found")
+        return {}
+    text = p.read_text()
+    try:
+        doc = yaml.safe_load(text) or {}
+        lines = _key_lines(yaml.compose(text))
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        raise ParamError(f"{p}:{mark.line + 1 if mark else 0}: not YAML: {getattr(e, 'problem', e)}") from None
+    if not isinstance(doc, dict) or set(doc) != {"ins"} or not isinstance(doc["ins"], dict):
+        raise ParamError(f"{p}:1: needs one top-level mapping 'ins:' of sections")
+    out = {}
+    for section, entries in doc["ins"].items():
+        where = f"{p}:{lines.get((section,), 0)}: {section}"
+        if not isinstance(entries, dict):
+            raise ParamError(f"{where}: a section is a mapping of settings")
+        for key, value in entries.items():
+            spec = FILTER.get(key)
+            where = f"{p}:{lines.get((section, key), 0)}: {section}.{key}"
+            if spec is None or spec.section != section:
+                hint = f" (it belongs in section '{spec.section}')" if spec is not None else ""
+                raise ParamError(f"{where}: unknown setting{hint}; known in {section}: "
+                                 f"{sorted(k for k, s in FILTER.items() if s.section == section) or 'none'}")
+            out[key] = _convert(value, spec, where)
+    return out
+
+
+def _key_lines(node) -> dict:
+    """{(section,): line, (section, key): line} (1-based) of an ``ins:`` document's composed YAML node."""
+    out: dict[tuple, int] = {}
+    if node is None or not hasattr(node, "value") or not isinstance(node.value, list):
+        return out
+    for k_top, v_top in node.value:
+        if getattr(k_top, "value", None) != "ins" or not isinstance(getattr(v_top, "value", None), list):
+            continue
+        for k_sec, v_sec in v_top.value:
+            out[(k_sec.value,)] = k_sec.start_mark.line + 1
+            if isinstance(getattr(v_sec, "value", None), list):
+                for k, _v in v_sec.value:
+                    out[(k_sec.value, k.value)] = k.start_mark.line + 1
+    return out
+
+
+def _convert(value, spec: Param, where: str):
+    """A file value ('0.05 m', 2, 'SINGLE', true) -> its SI value, checking the unit."""
+    from .nav.types import FixType
+
+    if spec.kind == "bool":
+        if type(value) is not bool:
+            raise ParamError(f"{where}: {value!r} is not true/false")
+        return value
+    if spec.kind == "fix":
+        names = [f.name for f in FixType]
+        if not isinstance(value, str) or value.upper() not in names:
+            raise ParamError(f"{where}: {value!r} is not a fix type ({', '.join(names)})")
+        return int(FixType[value.upper()])
+    number, unit = value, ""
+    if isinstance(value, str):
+        number, _, unit = value.strip().partition(" ")
+        unit = unit.strip()
+    if unit != spec.unit:
+        want = f"'{spec.unit}'" if spec.unit else "no unit (a plain number)"
+        got = f"unit '{unit}'" if unit else "no unit"
+        raise ParamError(f"{where}: {got} where {want} is expected")
+    if spec.kind == "int":
+        if type(number) is not int and not (isinstance(number, str) and number.lstrip("-").isdigit()):
+            raise ParamError(f"{where}: {value!r} is not an integer")
+        return int(number)
+    try:
+        x = float(number)
+    except (TypeError, ValueError):
+        raise ParamError(f"{where}: {value!r} is not a number{f' in {spec.unit}' if spec.unit else ''}") from None
+    if not math.isfinite(x):
+        raise ParamError(f"{where}: {value!r} is not finite")
+    return x * spec.to_si if spec.to_si != 1.0 else x
+
+
+def nav_config(sensor, filter_params: dict):
+    """The NavConfig the engine runs: the sensor description (a NavConfig or a stream_start ``config`` map;
+    only SENSOR_FIELDS are taken) with the filter settings of a parameter file (load_filter_params)."""
+    from .messages import map_to_dataclass
+    from .nav.types import NavConfig
+
+    if isinstance(sensor, dict):
+        sensor = map_to_dataclass(NavConfig, {k: v for k, v in sensor.items() if k in SENSOR_FIELDS})
+    return NavConfig(**{f: getattr(sensor, f) for f in SENSOR_FIELDS}).with_(**filter_params)
+
+
+def sensor_map(config) -> dict:
+    """The sensor description of a NavConfig as a msgpack-able map (stream_start's ``config``)."""
+    from .messages import pyval
+
+    return {f: pyval(getattr(config, f)) for f in SENSOR_FIELDS}
+
+
+def check_complete() -> list[str]:
+    """NavConfig fields that are neither sensor description, service switch nor a FILTER setting (should be
+    none: a new engine setting must be given a unit and a section here and a line in deploy/ins.yaml)."""
+    from .nav.types import NavConfig
+
+    return [f.name for f in fields(NavConfig) if f.name not in FILTER and f.name not in SENSOR_FIELDS
+            and f.name not in SERVICE_FIELDS]
+
+
+def load_attitude_params(path: str | os.PathLike | None = None):
+    """(ComplementaryConfig, origin) from an attitude parameter file (``attitude:`` mapping, human units). path
+    None: the ZENNAV_ATTITUDE_CONFIG file, else deploy/attitude.yaml, else the built-in defaults (same values)."""
+    import yaml
+
+    from .attitude.complementary import ComplementaryConfig
+
+    explicit = path or os.environ.get("ZENNAV_ATTITUDE_CONFIG")
+    p = Path(explicit) if explicit else ATTITUDE_PARAMS
+    if not p.exists():
+        if explicit:
+            raise ParamError(f"{p}: attitude parameter file not found")
+        return ComplementaryConfig(), "built-in defaults"
+    doc = yaml.safe_load(p.read_text()) or {}
+    if not isinstance(doc, dict) or not isinstance(doc.get("attitude"), dict):
+        raise ParamError(f"{p}:1: needs an 'attitude:' mapping")
+    try:
+        return ComplementaryConfig.from_mapping(doc["attitude"]), str(p)
+    except ValueError as e:
+        raise ParamError(f"{p}: {e}") from None

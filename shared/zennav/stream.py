@@ -1,0 +1,177 @@
+"""The sensor stream of one run: how the ingest produces it (``stream_messages``) and how its consumers, the
+ins and the attitude service, follow it (``StreamFollower``).
+
+``stream_messages(ds, windows, events)`` turns a run's selection (zennav.replay.sensor_events, the one the
+in-process replay feeds the engine) into the messages of the sensor keys, each stamped with ``cseq``:
+stream_start (the sensor description, zennav.params.SENSOR_FIELDS; the initial state; counts; outages), the
+imu (or imu_batch) and gnss messages in order, stream_end.
+
+``StreamFollower`` takes validated sensor messages (any sensor key, any order) and hands its consumer the
+samples of ONE stream (one ingest instance, ``src``) strictly in ``cseq`` order (zennav.messages.SequenceMerger,
+``imu_batch`` expanded), with ``on_start`` before the first and ``on_end`` after the last.
+
+Source ownership: the stream whose start the follower took is live until its ``stream_end``; messages of
+another source meanwhile are dropped (counted ``foreign_source``). A new ``stream_start`` from another source
+replaces the live stream; a repeated one from the same source is counted ``duplicate_start``.
+
+Late join (one policy for every consumer): a consumer that starts after a stream began (launched late,
+restarted by ``zennav launch``) joins it at the first IMU sample it receives. It needs the stream's
+description (the ins builds its engine from it), so it asks for the stream's ``stream_start`` with
+``fetch_start(src)``: the services query the ingest's latest value on ``sensor/stream`` (the stream key is
+served to late joiners, see zennav.messages.keys). Joined that way it is counted ``late_join`` and its
+``on_start`` gets the first sample (``join``) besides the start: the attitude filter levels from there; the ins
+starts in coarse alignment at that sample's time (heading unknown; position, velocity and attitude from the
+next GNSS fixes, as an ins switched on in motion). When nothing is live and the start cannot be had (no
+ingest answers, or it ended), messages are dropped and counted ``no_stream``; the start is asked for again
+after ``retry_every`` more of them. If the first message received is the one right after the start
+(nothing missed), the stream is followed from its start as usual.
+"""
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Callable, Iterator
+
+from . import messages as M
+from .params import sensor_map
+
+DROPS = ("foreign_source", "no_stream", "duplicate_start", "late_join")
+
+
+def stream_messages(ds, windows: list, events: list, batch: int = 1) -> Iterator[tuple[str, dict]]:
+    """(kind, message) of the sensor stream of a run (see the module docstring), kind "stream", "imu" or
+    "gnss" (the key it goes on); the publisher stamps src, seq and pub_ns. batch > 1: up to batch consecutive
+    IMU samples per imu_batch message, cut before every GNSS fix (the same samples, cseqs and order)."""
+    imu, gnss = ds.imu, ds.gnss
+    n_imu = sum(1 for e in events if e[0] == "imu")
+    counts = {"imu": n_imu, "gnss": len(events) - n_imu}
+    yield "stream", M.make("stream_start", int(ds.initial.t_ns), cseq=0, dataset=ds.name,
+                           config=sensor_map(ds.config), initial=M.dataclass_to_map(ds.initial), counts=counts,
+                           outages=[[int(a), int(b)] for a, b in windows])
+    t_list, dtheta, dvel = imu.t_ns.tolist(), imu.dtheta.tolist(), imu.dvel.tolist()
+    make = M.make
+    prev_t = int(ds.initial.t_ns)
+    held: list[int] = []  # batch: indices of the IMU samples not yet sent
+    cseq = 0
+    for kind, idx in events:
+        cseq += 1
+        if kind == "gnss":
+            if held:
+                yield "imu", _batch(held, prev_t, t_list, dtheta, dvel, cseq - len(held))
+                prev_t = t_list[held[-1]]
+                held = []
+            yield "gnss", M.gnss_msg(gnss.fix_at(idx), cseq)
+        elif batch > 1:
+            held.append(idx)
+            if len(held) == batch:
+                yield "imu", _batch(held, prev_t, t_list, dtheta, dvel, cseq - len(held) + 1)
+                prev_t = t_list[held[-1]]
+                held = []
+        else:
+            t = t_list[idx]
+            yield "imu", make("imu", t, cseq=cseq, dt_ns=t - prev_t, dtheta=dtheta[idx], dvel=dvel[idx])
+            prev_t = t
+    if held:
+        yield "imu", _batch(held, prev_t, t_list, dtheta, dvel, cseq - len(held) + 1)
+        prev_t = t_list[held[-1]]
+    cseq += 1
+    yield "stream", M.make("stream_end", prev_t, cseq=cseq, counts=counts, last_cseq=cseq)
+
+
+def _batch(held: list, prev_t: int, t_list: list, dtheta: list, dvel: list, first_cseq: int) -> dict:
+    ts = [t_list[i] for i in held]
+    return M.imu_batch_msg(ts, [b - a for a, b in zip([prev_t] + ts[:-1], ts)], [dtheta[i] for i in held],
+                           [dvel[i] for i in held], first_cseq)
+
+
+class StreamFollower:
+    """One consumer's view of the sensor stream (see the module docstring).
+
+    on_start(start, join): a stream begins; start is its stream_start message, join None when followed from
+    its start, else the first imu message of a late join. on_sample(key, msg): an imu or gnss message of the
+    live stream (each sample of an imu_batch as an imu message), in cseq order. on_end(end): its stream_end,
+    after every sample. fetch_start(src) -> the stream_start of src or None (late join; None: never joins)."""
+
+    def __init__(self, on_start: Callable, on_sample: Callable, on_end: Callable,
+                 fetch_start: Callable[[str], dict | None] | None = None, log: logging.Logger | None = None,
+                 retry_every: int = 1000, max_hold: int = 100_000):
+        self.on_start, self.on_sample, self.on_end = on_start, on_sample, on_end
+        self.fetch_start = fetch_start
+        self.log = log or logging.getLogger("zennav.stream")
+        self.retry_every = retry_every
+        self.max_hold = max_hold
+        self.src: str | None = None
+        self.dataset = ""
+        self.done = False
+        self.last_cseq = -1
+        self.merger: M.SequenceMerger | None = None
+        self.counts: Counter[str] = Counter({d: 0 for d in DROPS})
+        self._retry_in = 0
+
+    def on_message(self, key: str, msg: dict) -> None:
+        """A validated message of a sensor key (stream_start, imu, imu_batch, gnss, stream_end)."""
+        if msg["schema"] == "stream_start":
+            if msg["src"] == self.src:
+                self.counts["duplicate_start"] += 1
+            else:
+                self._begin(msg, msg["cseq"] + 1, None)
+            return
+        if msg["src"] != self.src:
+            if self.src is not None and not self.done:
+                self._drop("foreign_source", msg)
+                return
+            if not self._join(msg):
+                return
+        for m in M.samples(msg):
+            self.merger.push(m["cseq"], (key, m), self._release)
+
+    def _join(self, msg: dict) -> bool:
+        """Join the stream of msg (its start was missed) at msg, an IMU message; False when not (yet) possible."""
+        start = None
+        if msg["schema"] in ("imu", "imu_batch") and self.fetch_start is not None and self._retry_in <= 0:
+            start = self.fetch_start(msg["src"])
+            if start is None or start.get("schema") != "stream_start" or start.get("src") != msg["src"]:
+                start, self._retry_in = None, self.retry_every
+        if start is None:
+            self._retry_in -= 1
+            self._drop("no_stream", msg)
+            return False
+        if msg["cseq"] == start["cseq"] + 1:  # nothing missed: follow from the start
+            self._begin(start, msg["cseq"], None)
+            return True
+        self.counts["late_join"] += 1
+        self.log.warning("joining stream %s from %s late, at cseq %d (its start was cseq %d)", start["dataset"],
+                         msg["src"], msg["cseq"], start["cseq"])
+        self._begin(start, msg["cseq"], M.samples(msg)[0])
+        return True
+
+    def _begin(self, start: dict, next_cseq: int, join: dict | None) -> None:
+        if self.src is not None and start["src"] != self.src:
+            self.log.info("new stream %s from %s replaces %s", start["dataset"], start["src"], self.src)
+        self.src, self.dataset, self.done, self.last_cseq = start["src"], start["dataset"], False, -1
+        self.merger = M.SequenceMerger(next_cseq, self.max_hold)
+        self.on_start(start, join)
+
+    def _release(self, item) -> None:
+        key, msg = item
+        if msg["schema"] == "stream_end":
+            self.merger.flush(self._release)
+            self.done, self.last_cseq = True, msg["last_cseq"]
+            self.on_end(msg)
+        else:
+            self.on_sample(key, msg)
+
+    def _drop(self, reason: str, msg: dict) -> None:
+        self.counts[reason] += 1
+        n = self.counts[reason]
+        if n <= 3 or n % 1000 == 0:
+            self.log.warning("dropped %s from %s (#%d %s; live stream: %s)", msg["schema"], msg["src"], n, reason,
+                             self.src)
+
+    def status(self) -> dict:
+        """Stream progress for nav_status ``stream``: src, dataset, done, last_cseq, next_cseq, held and the
+        merge counts (reordered, duplicate, gap)."""
+        m = self.merger
+        return {"src": self.src or "", "dataset": self.dataset, "done": self.done, "last_cseq": self.last_cseq,
+                "next_cseq": m.next if m else -1, "held": m.held if m else 0,
+                **({k: int(v) for k, v in m.counts.items()} if m else {})}
