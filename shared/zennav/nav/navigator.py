@@ -93,12 +93,11 @@ class Navigator:
         self._dx_since_fix = np.zeros(N_STATES)  # corrections of the GNSS fix being fused
         self.last_dx = np.zeros(N_STATES)  # correction of the last fused update
         self._learn_start_t_ns = self.t_ns + int(config.learn_after_s * NS)
-        self.sources: dict[str, AidSource] = {s.name: s for s in build_sources(config, self.t_ns)}
-        self._inputs: dict[str, list[AidSource]] = {}
-        for src in self.sources.values():
-            for kind in src.inputs:
-                self._inputs.setdefault(kind, []).append(src)
-        self._step_sources = [s for s in self.sources.values() if s.on_step is not None]
+        self.sources: dict[str, AidSource] = {}
+        self._inputs: dict[str, list[AidSource]] = {"gnss": []}
+        self._step_sources: list[AidSource] = []
+        for src in build_sources(config, self.t_ns):
+            self.add_source(src)
         self.gnss_pos = self.sources["gnss_pos"]  # the GNSS state and the outage clock
         self.alignment = Alignment(config, initial, coarse)
         self.alignment.start(self)
@@ -150,6 +149,23 @@ class Navigator:
             self.count_rejection("correction_malformed", query.t_ns, "")
             return False
         return src.on_input(self, (query, value, std))
+
+    def on_aid(self, kind: str, data) -> bool:
+        """Hand data of an input kind (one that no dedicated method above takes) to the sources that take it, now;
+        returns whether any of them fused a measurement."""
+        fused = [src.on_input(self, data) for src in self._inputs.get(kind, ()) if src.admit(self, data)]
+        return any(fused)
+
+    def add_source(self, source: AidSource) -> None:
+        """Run another aiding source (after those of zennav.nav.aid.build_sources): its inputs are routed to it
+        and its on_step runs after every IMU sample; its state is part of get_state."""
+        if source.name in self.sources:
+            raise ValueError(f"an aiding source named {source.name!r} exists")
+        self.sources[source.name] = source
+        for kind in source.inputs:
+            self._inputs.setdefault(kind, []).append(source)
+        if source.on_step is not None:
+            self._step_sources.append(source)
 
     def on_attitude(self, t_ns: int, roll: float, pitch: float, std: float) -> bool:
         """Roll and pitch [rad] with their 1-sigma std [rad] from an attitude source (e.g. the zennav.attitude filter)

@@ -6,7 +6,8 @@ engine (zennav.nav.navigator) owns mechanization, covariance propagation, the on
 chi-square gate, adaptive R where the source has an estimator) and the feedback. A new source (non-holonomic
 constraint, zero velocity, odometer, DVL, depth) is a new subclass added to zennav.nav.aid.build_sources; the
 engine keeps its sources by name, routes each input to the sources whose ``inputs`` name its kind and calls
-``on_step`` after every IMU sample where a source defines it.
+``on_step`` after every IMU sample where a source defines it. A source that measures at the engine's current
+time calls ``nav.propagate_covariance()`` before it builds its measurement, and hands it to ``nav.update``.
 """
 from __future__ import annotations
 

@@ -26,7 +26,7 @@ from .base import AidSource, Measurement
 class LearnedSource(AidSource):
     """The learned pseudo-measurement of one target variant (see the module docstring); name learned_<target>."""
 
-    inputs = ("correction",)
+    inputs = ()  # Navigator.on_correction hands each answer to the source of its query's target
 
     def __init__(self, config: NavConfig, target: str):
         super().__init__(f"learned_{target}")
