@@ -1,6 +1,6 @@
 """The ins's side of the learning loop over the bus, transport-free: publishes the engine's training samples and
-prediction queries, keeps the pending queries and fuses the predictor's matching answers (see
-zennav.services.ins for the wiring).
+prediction queries, keeps the pending queries and hands the predictor's matching answers to the engine, which
+fuses them or rejects them with its reason (see zennav.services.ins for the wiring).
 
 Every query carries n_samples, the number of samples of its target variant published before it, so that the
 trainer fits through exactly those and the predictor (in lockstep) answers with that set (zennav.learn.learner).
@@ -21,9 +21,10 @@ from zennav import messages as M
 class LearningLink:
     """The ins side of the learning loop over the bus (see the module docstring): publishes the core's samples
     and queries (``publish("sample" | "query", msg)``; the publisher stamps src/seq), keeps the pending
-    queries and fuses the matching corrections. Counts: samples, queries (sent), fused, not_fused (the core's
-    gate or size check), refused_<reason> (the predictor's), stale, late, unmatched, mismatched, unanswered,
-    lockstep_timeouts."""
+    queries and hands the matching answers to the engine (Navigator.on_correction, which judges them: stale,
+    late, malformed, gated; counted in its counters). Counts: samples, queries (sent), fused, not_fused (the
+    engine's rejections), refused_<reason> (the predictor's), unmatched, mismatched, unanswered (expired after
+    max_age_s of data time without an answer), lockstep_timeouts."""
 
     def __init__(self, publish, log, targets=("drift",), max_age_s: float = 1.0, lockstep_timeout_s: float = 0.0,
                  lock=None):
@@ -94,14 +95,9 @@ class LearningLink:
             if msg.get("refused"):
                 self.counts[f"refused_{msg['refused']}"] += 1
                 return False
-            if nav.last_fused_t_ns >= q.t_ns:
-                self.counts["stale"] += 1
-                return False
-            if nav.t_ns - q.t_ns > self.max_age_ns:
-                self.counts["late"] += 1
-                return False
             self.last_model, self.last_version = msg["model"], msg["version"]
-            fused = bool(nav.on_correction(q, msg["value"], msg["std"]))  # the core counts gate/malformed rejections
+            # the engine judges the answer: stale (a fix fused since the query), late, malformed, gated (its counters)
+            fused = bool(nav.on_correction(q, msg["value"], msg["std"]))
             self.counts["fused" if fused else "not_fused"] += 1
             return fused
 
