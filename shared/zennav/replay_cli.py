@@ -13,43 +13,37 @@ import numpy as np
 from .datasets.errors import DataError
 from .metrics import evaluate, format_table, write_outputs
 from .nav.learning import TARGETS
-from .replay import run_replay
+from .params import ParamError, load_filter_params, nav_config
+from .replay import parse_outage, parse_outage_every, run_replay
 
 
-def _parse_outage(text: str) -> tuple[float, float]:
-    try:
-        start, dur = (float(x) for x in text.split(":"))
-    except ValueError:
-        raise click.BadParameter(f"expected START:DURATION in seconds, got {text!r}") from None
-    if dur <= 0 or start < 0:
-        raise click.BadParameter(f"START must be >= 0 and DURATION > 0, got {text!r}")
-    return start, dur
+def _click_parser(parse):
+    """A zennav.replay outage parser as a click callback value parser (ValueError -> BadParameter)."""
+    def conv(text: str):
+        try:
+            return parse(text)
+        except ValueError as e:
+            raise click.BadParameter(str(e)) from None
+    return conv
 
 
-def _parse_every(text: str) -> tuple[float, float, float]:
-    parts = text.split(":")
-    try:
-        vals = [float(x) for x in parts]
-    except ValueError:
-        raise click.BadParameter(f"expected PERIOD:DURATION[:FIRST] in seconds, got {text!r}") from None
-    if len(vals) not in (2, 3) or vals[0] <= 0 or vals[1] <= 0 or vals[1] >= vals[0]:
-        raise click.BadParameter(f"expected PERIOD:DURATION[:FIRST] with 0 < DURATION < PERIOD, got {text!r}")
-    period, dur = vals[:2]
-    return period, dur, vals[2] if len(vals) == 3 else period - dur
+_parse_outage = _click_parser(parse_outage)
+_parse_every = _click_parser(parse_outage_every)
 
 
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
                    target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None,
-                   seed: int = 0) -> dict:
+                   seed: int = 0, params: Path | None = None) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
-    initial state without its yaw (alignment); adaptive_r: override NavConfig.adaptive_r (None: keep); seed: of
-    the learned model."""
+    initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
+    seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins)."""
     from .learn.loop import make_compensator
     from .datasets.registry import load_dataset
 
     try:
         ds = load_dataset(spec)
-    except DataError as e:
+        ds.config = nav_config(ds.config, load_filter_params(params))  # the ins's filter on the dataset's sensors
+    except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
     if heading_unknown:
         ds.initial = replace(ds.initial, heading_known=False)
@@ -129,11 +123,13 @@ def _setup_logging(verbose: int) -> None:
 @click.option("--heading-unknown", is_flag=True,
               help="Ignore the dataset's initial yaw: align at rest (gyrocompassing where the gyro allows it) or in "
               "motion from the GNSS velocity (yaw = course once faster than 3 m/s).")
+@click.option("--params", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="The ins's filter parameter file (human units) [deploy/ins.yaml]: the same filter as zennav-ins.")
 @click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,
-              help="Innovation-based adaptive GNSS measurement noise (seed 001); default: the dataset's setting (off).")
+              help="Innovation-based adaptive GNSS measurement noise (seed 001); default: the parameter file's (off).")
 @_with_outage_opts
-def replay(dataset, kf_gins_config, heading_unknown, adaptive_r, outages, every, out, as_json, compensation, target,
-           seed, verbose):
+def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, outages, every, out, as_json, compensation,
+           target, seed, verbose):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
@@ -144,7 +140,7 @@ def replay(dataset, kf_gins_config, heading_unknown, adaptive_r, outages, every,
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
-                   heading_unknown, adaptive_r, seed)
+                   heading_unknown, adaptive_r, seed, params)
 
 
 @click.command()
