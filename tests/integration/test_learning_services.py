@@ -8,8 +8,9 @@
 - remote trainer: a zenoh client of the edge router from a second network namespace over a veth pair; the link
   is cut (veth down) and restored; the edge predicts with the last set meanwhile and takes the next one after
   the trainer reconnected, trained on the samples it kept;
-- the whole loop: ins --learning publishes samples, the trainer trains, the ins fuses the predictor's answers
-  during a GNSS outage.
+- the whole loop in lockstep: ins --learning --lockstep publishes samples and counted queries, the trainer fits
+  through each query's count, the predictor answers with that set, the ins fuses the answers during a GNSS outage;
+  the solution equals the in-process loop's (zennav.learn.loop) bit for bit.
 """
 from __future__ import annotations
 
@@ -289,7 +290,7 @@ def test_remote_trainer_from_other_netns_survives_link_cut(cluster, netns, tmp_p
     trainer = Proc("trainer", ["ip", "netns", "exec", ns, PY, "-m", "zennav.services.trainer", "--mode", "client",
                                "--zenoh-config", client_conf, "--connect", f"tcp/{edge_ip}:{p_lan}",
                                "--vehicle", cluster.vehicle, "--status-period", "0.2", "--min-samples", "200",
-                               "--retrain-samples", "200", "--retrain-every", "0", "--max-epochs", "5",
+                               "--retrain-samples", "200", "--max-epochs", "5",
                                "--n-rules", "4", "--link-poll", "0.2", "--targets", "drift"], tmp_path / "trainer.log", env)
     cluster.procs.append(trainer)
     inside.append(trainer)
@@ -360,70 +361,68 @@ def test_remote_trainer_from_other_netns_survives_link_cut(cluster, netns, tmp_p
 
 
 # ------------------------------------------------------------------------------------------------ (d) the whole loop
-def test_ins_learning_loop_fuses_predictions_during_outage(cluster):
-    """ins --learning + trainer + predictor on the simulated drive, two streams: the first (GNSS throughout) feeds
-    the trainer, which publishes a set; during the GNSS outage of the second the ins queries, the predictor answers
-    with that set and the ins fuses the answers (learned_body_velocity aid reports; the default target). Two streams
-    so that the test does not race the training against the data; it shows the plumbing, not the accuracy (the
-    second drive is the first)."""
+def test_ins_learning_loop_in_lockstep_equals_the_in_process_loop(cluster):
+    """ins --learning --lockstep + trainer + predictor --lockstep on the simulated drive with a GNSS outage: the ins
+    publishes its samples and, in the outage, queries stamped with its sample count; the trainer fits through
+    exactly that count, the predictor answers with that set and the ins waits for each answer before its next IMU
+    sample. The distributed solution, the learned aid reports and the sets are then the in-process loop's
+    (zennav.learn.loop, same LearnSettings) bit for bit; no wait times out, no answer is late."""
+    from zennav.datasets.registry import load_dataset
+    from zennav.learn.loop import InProcessLoop
+    from zennav.learn.settings import LearnSettings
+    from zennav.replay import run_replay
+
     k = cluster.keys
+    sols = Collector(cluster.bus, k.nav_solution())
     status = Collector(cluster.bus, k.nav_status(), channel="ring")
     aids = Collector(cluster.bus, k.nav_aid("learned_body_velocity"))
     models = Collector(cluster.bus, k.learn_model())
     svc = Collector(cluster.bus, k.svc_status(), channel="ring", capacity=64)
-    cluster.service("predictor")
-    # one training, at 60 samples (of the ~70 of stream 1: one per 1 Hz fix after convergence); stream 2 adds
-    # ~50 before its outage: no other
-    cluster.service("trainer", "--min-samples", "60", "--retrain-samples", "60", "--retrain-every", "0",
-                    "--n-rules", "4", "--torch-threads", "1")
-    # streamed as fast as the ins goes (tens of times real time): allow answers 3 s of data time old
-    cluster.service("ins", "--learning", "--correction-max-age", "3")
-
-    def done(n):
-        def nth(c):
-            d = [m for m in c.msgs() if m["stream"].get("done")]
-            return d[n - 1] if len(d) >= n else None
-
-        return status.wait(nth, 90, f"stream {n} done")
-
-    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=110", "--speed", "0", wait=False)
-    st1 = done(1)
-    assert ing.wait(30) == 0
-    v1 = models.wait(lambda c: next(iter(c.msgs()), None), 60, "a set from the trainer")
-    assert v1["version"] == 1 and v1["metrics"]["samples"] >= 60 and v1["metrics"]["target"] == "body_velocity"
-    # the same drive 200 s later in data time: every consumer checks that data time does not go back per
-    # publisher (zennav.messages.Validator), so a second stream of one ins must not start before the first ended
-    ing2 = cluster.service("ingest", "sim:car", "-o", "duration_s=110", "-o", "t0_s=356600", "--speed", "0",
-                           "--outage", "90:20", wait=False)
-    st = done(2)
-    assert ing2.wait(30) == 0 and st["stream"]["src"] != st1["stream"]["src"]
+    settings = LearnSettings(min_samples=60, n_rules=4, max_epochs=5)
+    cluster.service("predictor", "--lockstep", "--status-period", "0.2")
+    cluster.service("trainer", "--min-samples", "60", "--n-rules", "4", "--max-epochs", "5", "--torch-threads", "1",
+                    "--device", "cpu", "--status-period", "0.2")
+    cluster.service("ins", "--learning", "--lockstep")
+    duration, outage = 150.0, (100.0, 20.0)
+    ing = cluster.service("ingest", "sim:car", "-o", f"duration_s={duration:g}", "--speed", "0",
+                          "--outage", f"{outage[0]:g}:{outage[1]:g}", wait=False)
+    loop = InProcessLoop("body_velocity", settings)
+    ref = run_replay(load_dataset("sim:car", duration_s=duration), outages=[outage], compensator=loop)
+    st = status.wait(lambda c: next((m for m in c.msgs() if m["stream"].get("done")), None), 240,
+                     "ins to finish the stream")
+    assert ing.wait(60) == 0
+    n = len(ref.t_ns)
+    msgs = sols.wait(lambda c: c.msgs() if len(c.msgs()) >= n else None, 60, "all solutions")
+    assert np.array_equal(np.array([m["t_ns"] for m in msgs], dtype=np.int64), ref.t_ns)
+    learned = [r for r in ref.reports if r.source == "learned_body_velocity"]
+    # every row bit for bit, except at the IMU samples where an answer was fused: the replay records its row before
+    # it hands the queries of that sample to the loop, the ins publishes its solution after the answers are fused
+    # (the next rows are equal again: the engine's state is the same)
+    fused_at = np.isin(ref.t_ns, [r.t_ns for r in learned if r.fused])
+    for field, want in (("llh", ref.llh), ("v_n", ref.v_n), ("q_nb", ref.q_nb), ("std_pos_ned", ref.std_pos_ned)):
+        got = np.array([m[field] for m in msgs])
+        same = np.all(got == want, axis=1)
+        assert np.array_equal(same | fused_at, np.ones(n, dtype=bool)), f"{field} differs from the in-process loop"
+    assert learned and sum(r.fused for r in learned) >= 1
+    got = aids.wait(lambda c: c.msgs() if len(c.msgs()) >= len(learned) else None, 20, "the learned aid reports")
+    assert [(m["t_ns"], m["fused"], m["observation"]) for m in got] == \
+        [(r.t_ns, r.fused, list(r.observation)) for r in learned]
+    # the sets: the same fit points and the same arrays as the in-process loop's
+    sets = models.wait(lambda c: c.msgs() if len(c.msgs()) >= loop.version else None, 20, "the trainer's sets")
+    assert [m["metrics"]["samples_seen"] for m in sets] == [60, loop.core.live["body_velocity"].samples_seen]
+    last = paramset.validate(M.paramset_of(sets[-1]))
+    live = loop.core.live["body_velocity"]
+    assert all(np.array_equal(last.arrays[a], live.arrays[a]) for a in live.arrays)
+    assert all(np.array_equal(last.norm[a], live.norm[a]) for a in live.norm) and tuple(last.metrics["sigma"]) == live.std
     model = st["model"]
-    assert model["learning"] and model["samples"] > 110 and model["queries"] >= 15, model
-    assert [m["version"] for m in models.msgs()] == [1]
-    tst = wait_counter(svc, "trainer", lambda c: c.get("samples_body_velocity", 0) == model["samples"], 20,
-                       "every sample at the trainer")
-    assert tst["rejected"] == {} and last_status(svc, "predictor")["rejected"] == {}
-    # every query of the outage answered and matched, except those the predictor refuses as outside the set's
-    # training range (off_domain: they expire at the ins as unanswered); each answer judged by the core (fused or
-    # gated) unless it came too late: after the first fix at the outage's end (stale) or more than 3 s of data
-    # time after its query (late; the stream runs tens of times faster than real time, so a 60 ms stall is
-    # enough). The last answers may come after the stream's final nav_status: count them from the heartbeats.
+    assert model["lockstep"] and model.get("lockstep_timeouts", 0) == 0 and model["queries"] == loop.counts["queries"]
     pc = wait_counter(svc, "predictor", lambda c: c.get("queries_answered", 0) + c.get("queries_off_domain", 0)
                       == model["queries"], 20, "every query at the predictor")["counters"]
-    answered, off_domain = pc.get("queries_answered", 0), pc.get("queries_off_domain", 0)
-    outcomes = ("fused", "not_fused", "stale", "late", "unmatched", "mismatched")
-    c = wait_counter(svc, "ins", lambda c: sum(c.get(f"learn_{o}", 0) for o in outcomes) == answered, 20,
-                     "an outcome for every answer at the ins")["counters"]
-    lc = {o: c.get(f"learn_{o}", 0) for o in (*outcomes, "unanswered", "queries")}
-    judged = lc["fused"] + lc["not_fused"]
-    # an answer to a query that expired first (unanswered at the ins) is unmatched when it arrives; an off-domain
-    # query expires at the ins unless the stream ended less than the maximum age after it (still pending then)
-    assert lc["mismatched"] == 0 and lc["unmatched"] <= lc["unanswered"] + model["pending"] - off_domain, (lc, pc)
-    assert judged >= answered - 3, (lc, pc)
-    assert answered >= model["queries"] // 2, f"most queries refused as off-domain: {pc}"
-    assert model["version"] == 1
-    reports = aids.wait(lambda c: len(c.msgs()) >= judged and c.msgs(), 10, "the learned_body_velocity reports")
-    assert sum(m["fused"] for m in reports) == lc["fused"] and len(reports) == judged
-    assert lc["fused"] >= 1, f"no answer fused: {lc}"
-    print(f"\nins learning loop: {model['samples']} samples sent, set v1 on {v1['metrics']['samples']} samples; "
-          f"{model['queries']} queries in the outage, {off_domain} refused as off-domain, answers: {lc}")
+    assert pc.get("queries_late_model", 0) == 0 and pc.get("queries_no_model", 0) == 0
+    lc = loop.status()
+    assert (pc.get("queries_answered", 0), pc.get("queries_off_domain", 0)) == \
+        (lc.get("queries_answered", 0), lc.get("queries_off_domain", 0))
+    assert model["fused"] == sum(r.fused for r in learned) and model.get("unanswered", 0) == 0
+    print(f"\nlockstep learning loop = in-process loop, bit for bit: {n} solutions, {len(learned)} learned answers "
+          f"({model['fused']} fused), sets through {[m['metrics']['samples_seen'] for m in sets]} samples; "
+          f"ins {model}; predictor {pc}")

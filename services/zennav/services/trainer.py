@@ -82,7 +82,6 @@ class TrainerNode:
             self.counts["ignored_shape"] += 1
             return
         self.learners[t].add(msg["t_ns"], msg["features"], msg["target"])
-        self.counts[f"samples_{t}"] += 1
         with self.cv:
             self.cv.notify()
 

@@ -2,8 +2,11 @@
 prediction queries, keeps the pending queries and hands the predictor's matching answers to the engine, which
 fuses them or rejects them with its reason (see zennav.services.ins for the wiring).
 
-Every query carries n_samples, the number of samples of its target variant published before it, so that the
-trainer fits through exactly those and the predictor (in lockstep) answers with that set (zennav.learn.learner).
+Every query carries n_samples, the number of samples of its target variant published before it (since this link
+started), so that the trainer fits through exactly those and the predictor (in lockstep) answers with that set
+(zennav.learn.learner). The counts agree only if the trainer received every sample this link published: a
+trainer started later (or restarted) never gets a fit point through n; outside lockstep the predictor then
+answers with its live set, as it would without n_samples.
 Lockstep (lockstep_timeout_s > 0; a replay of a recording): after publishing queries, ``after_imu`` waits for
 their answers (or refusals) before it returns, i.e. before the ins consumes its next sensor sample, up to the
 timeout (counted: lockstep_timeouts). The wait is on a condition of ``lock``, the lock the answers' callback runs
@@ -42,12 +45,12 @@ class LearningLink:
         self._n = 0
 
     def reset(self) -> None:
-        """A new stream: pending queries are unanswered, sample counts start again."""
+        """A new stream: pending queries are unanswered. The sample counts go on: the trainer counts every sample
+        it received from the start, whatever the stream."""
         with self.cv:
             if self.pending:
                 self.counts["unanswered"] += len(self.pending)
             self.pending.clear()
-            self.sent = {t: 0 for t in self.targets}
 
     def after_imu(self, nav) -> None:
         for s in nav.pop_samples():
