@@ -92,7 +92,8 @@ def monitor_cmd(ctx):
               help="json: Foxglove-readable with JSON schemas; msgpack: the raw payloads")
 @click.option("--duration", type=float, default=None, help="stop after this many seconds")
 @click.option("--until-stream-end", is_flag=True,
-              help="stop once the ins acknowledged a stream end and all its solutions are recorded")
+              help="stop once every ins seen (also those with a --nav-prefix) acknowledged its stream end and all "
+                   "its solutions are recorded")
 @click.option("--count", type=int, default=None, help="stop after this many messages")
 @_bus_options
 def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicle, mode, zenoh_config, connect,
@@ -107,23 +108,22 @@ def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicl
     bus = Bus("record", vehicle, mode=mode, config=zenoh_config, connect=connect, listen=listen, token=False)
     rec = McapRecorder(output, encoding)
     ev = _stop_event()
-    done = {"solutions_expected": None}
-    sol_key = bus.keys.nav_solution()
+    expected: dict[str, int | None] = {}  # per ins (nav status key): solutions of its finished stream
 
     def on_sample(key, payload, recv_ns):
         rec.add(key, payload, recv_ns)
         if count is not None and rec.count >= count:
             ev.set()
         if until_stream_end:
-            if key == bus.keys.nav_status():
+            stream = M.stream_of(key)
+            if stream is not None and stream.name == "nav/status":  # <base>/nav[/<prefix>]/status
                 try:
                     st = M.decode(payload).get("stream", {})
-                    if st.get("done"):
-                        done["solutions_expected"] = st.get("solutions")
+                    expected[key] = st.get("solutions") if st.get("done") else None
                 except Exception:
                     pass
-            exp = done["solutions_expected"]
-            if exp is not None and rec.per_key.get(sol_key, 0) >= exp:
+            if expected and all(n is not None and rec.per_key.get(k[:-len("status")] + "solution", 0) >= n
+                                for k, n in expected.items()):
                 ev.set()
 
     for k in keys or [bus.keys.all()]:

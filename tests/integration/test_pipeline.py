@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import random
+import re
 
 import msgpack
 import numpy as np
@@ -191,3 +192,33 @@ def test_bad_payloads_rejected_counted_services_survive_solution_unchanged(clust
     ref = _replay(60.0, [(20.0, 10.0)])
     _check_equal(sols.msgs(), ref)
     assert st["stream"].get("gap", 0) == 0 and st["stream"].get("duplicate", 0) == 0
+
+
+def test_second_ins_with_nav_prefix_beside_the_first(cluster, tmp_path):
+    """The demo's no-learning row over the bus: a second ins (--name ins-plain --nav-prefix plain) on the same
+    stream publishes on <base>/nav/plain/...: both solutions equal the in-process replay bit for bit, the ingest
+    waits for both acknowledgements, and `zennav record --until-stream-end` stops only once both are recorded."""
+    from zennav.recording import read_mcap
+
+    k = cluster.keys
+    plain = M.Keys(k.vehicle, nav_prefix="plain")
+    sols, sols_plain = Collector(cluster.bus, k.nav_solution()), Collector(cluster.bus, plain.nav_solution())
+    cluster.service("ins")
+    p = cluster.start("ins-plain", "zennav.services.ins", "--name", "ins-plain", "--nav-prefix", "plain")
+    cluster.wait_alive(["ins-plain"], 30, p)
+    out = tmp_path / "two.mcap"
+    rec = cluster.zennav("record", "record", str(out), "--until-stream-end", bus_args=True)
+    cluster.wait_alive(["record"], 30, rec)
+    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=60", "--speed", "0", "--outage", "20:10",
+                          "--wait-for", "ins,ins-plain,record", wait=False)
+    assert ing.wait(120) == 0, ing.text()
+    assert "acknowledged by" in ing.text() and ing.text().count("ins-plain.") >= 1
+    assert rec.wait(60) == 0, rec.text()
+    ref = _replay(60.0, [(20.0, 10.0)])
+    n = len(ref.t_ns)
+    for c in (sols, sols_plain):
+        c.wait(lambda c: len(c.msgs()) >= n, 30, "all solutions")
+        assert max(_check_equal(c.msgs(), ref, tol=0.0).values()) == 0.0
+    for key in (k.nav_solution(), plain.nav_solution()):
+        assert sum(1 for _ in read_mcap(out, [re.escape(key) + "$"])) == n, key
+    assert cluster.bus.rejected == {}

@@ -13,7 +13,7 @@ import pytest
 from zennav import messages as M
 from zennav.attitude.complementary import AdaptiveComplementaryFilter
 from zennav.params import load_attitude_params as load_config
-from zennav.services.attitude import AttitudeNode, omega_in_n_of
+from zennav.nodes.attitude import AttitudeNode, omega_in_n_of
 
 K = M.Keys("car")
 log = logging.getLogger("test")
@@ -145,7 +145,7 @@ def test_attitude_node_late_join_and_without_solution_zero_rate():
 
 
 def _ins_status(duration_s, adaptive_r: bool = False, **kw):
-    from zennav.services.ins import InsNode
+    from zennav.nodes.ins import InsNode
 
     out = []
     node = InsNode(lambda kind, m: out.append((kind, m)), log, {"adaptive_r": adaptive_r})
@@ -226,7 +226,7 @@ def test_nav_status_and_attitude_without_the_new_fields_still_valid():
 def test_ins_takes_the_attitude_tilt_only_in_coarse_alignment_at_rest_unrejected():
     """--attitude-alignment: roll/pitch from the attitude service replace an uncertain initial tilt while the
     heading is unknown and the vehicle stands; a rejected sample (weight < 1) is not taken."""
-    from zennav.services.ins import InsNode
+    from zennav.nodes.ins import InsNode
 
     msgs = _stream(10.0, heading_unknown=True)
     msgs[0][1]["initial"]["std_euler"][:2] = [np.radians(10.0)] * 2
@@ -245,7 +245,7 @@ def test_ins_takes_the_attitude_tilt_only_in_coarse_alignment_at_rest_unrejected
 
 
 def test_monitor_state_and_table_show_alignment_r_and_attitude():
-    from zennav.services.monitor import MonitorState, format_table
+    from zennav.nodes.monitor import MonitorState, format_table
 
     st = MonitorState(K)
     m = _status(alignment=copy.deepcopy(GOOD_AL), adaptive_r=True, measurement_noise=copy.deepcopy(GOOD_R))
@@ -264,3 +264,25 @@ def test_monitor_state_and_table_show_alignment_r_and_attitude():
     for s in ("alignment fine", "heading 1-sigma 1.146 deg", "adaptive R on", "R gnss_pos", "branch fading",
               "R/reported [1.50, 1.50, 1.00]", "R/reported -", "weight 0.75", "earth+transport rate applied"):
         assert s in text, (s, text)
+
+
+def test_monitor_keeps_a_second_ins_apart():
+    """A second ins on the same stream publishes under a nav prefix (zennav-ins --nav-prefix plain): the monitor
+    keeps its status and aid sources apart from the first ins's, and shows both."""
+    from zennav.nodes.monitor import MonitorState, format_table
+
+    plain = M.Keys("car", nav_prefix="plain")
+    st = MonitorState(K)
+    st.on_sample(K.nav_status(), M.encode(_status(alignment=copy.deepcopy(GOOD_AL))), 0)
+    other = _status()
+    other.update(gnss_state="outage", imu_count=7, stream={"done": True})
+    st.on_sample(plain.nav_status(), M.encode(other), 0)
+    rep = M.make("aid_report", 5, source="gnss_pos", observation=[1.0], innovation=[0.1], innovation_var=[1.0],
+                 test_ratio=0.5, fused=True, reason="")
+    rep.update(src="ins-plain", seq=0, pub_ns=0)
+    st.on_sample(plain.nav_aid("gnss_pos"), M.encode(rep), 0)
+    snap = st.snapshot()
+    assert snap["nav"]["gnss_state"] == "valid" and snap["nav"]["alignment"]["state"] == "fine"
+    assert snap["navs"]["plain"]["gnss_state"] == "outage" and snap["navs"]["plain"]["imu_count"] == 7
+    assert set(snap["aid"]) == {"plain/gnss_pos"} and sum(sum(k["rejected"].values()) for k in snap["keys"].values()) == 0
+    assert "NAV/plain  gnss outage  imu 7" in format_table(snap)

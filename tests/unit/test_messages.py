@@ -54,6 +54,8 @@ def test_nav_prefix_moves_only_the_ins_outputs():
     for bad in ("aid", "status", "solution", "a/b"):
         with pytest.raises(ValueError):
             M.Keys("car", nav_prefix=bad)
+    assert [K.nav_prefix_of(k) for k in (P.nav_status(), P.nav_aid("x"), K.nav_status(), K.nav_aid("x"), K.imu())] \
+        == ["plain", "plain", "", "", ""]
 
 
 def test_aid_report_optional_status_fields():
@@ -223,7 +225,7 @@ def test_ins_node_over_messages_equals_replay(shuffle):
     """ingest's event order + codec + validator + cseq merge + InsNode, without a network, reproduce
     run_replay bit for bit, also when messages arrive out of order (within a window)."""
     from zennav.replay import run_replay
-    from zennav.services.ins import InsNode
+    from zennav.nodes.ins import InsNode
     from zennav.sim.scenarios import make_dataset
 
     ds = make_dataset("car", duration_s=40.0, seed=4)

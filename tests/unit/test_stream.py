@@ -105,7 +105,7 @@ def test_follower_without_a_start_drops_and_asks_again_later():
 def test_start_missed_but_nothing_else_is_a_normal_start():
     """The start message lost (or overtaken) but the first sample received is the one right after it: the ins
     follows the stream from its start, the solution is the replay's bit for bit."""
-    from zennav.services.ins import InsNode
+    from zennav.nodes.ins import InsNode
 
     ds = load_dataset("sim:car", duration_s=30.0)
     msgs = _msgs(ds, batch=4)
@@ -125,7 +125,7 @@ def test_ins_joining_late_aligns_in_motion_and_navigates():
     takes position and velocity from the next fixes, aligns in motion and then navigates within metres of the
     truth, also through a 20 s outage (measured: 1.5 m at most, 0.13 m at the end)."""
     from zennav.nav import earth
-    from zennav.services.ins import InsNode
+    from zennav.nodes.ins import InsNode
 
     ds = load_dataset("sim:car", duration_s=180.0)
     msgs = _msgs(ds, outages=[(140.0, 20.0)])

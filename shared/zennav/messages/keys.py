@@ -99,6 +99,11 @@ class Keys:
         p = self.base + "/"
         return key[len(p):] if key.startswith(p) else ""
 
+    def nav_prefix_of(self, key: str) -> str:
+        """The nav prefix of a nav key (<base>/nav/<prefix>/...; '' for the ins's own and for other keys)."""
+        parts = self.rel(key).split("/")
+        return parts[1] if len(parts) > 2 and parts[0] == "nav" and parts[1] not in NAV_STREAM_NAMES else ""
+
     def service_of_alive(self, key: str) -> str:
         return key.rsplit("/", 1)[-1]
 
