@@ -13,55 +13,20 @@ from pathlib import Path
 import numpy as np
 
 from .nav import earth
-from .nav.rotation import wrap_angle
+from .nav.rotation import quat_to_dcm, quat_to_euler, wrap_angle
 from .nav.types import NS, Dataset
 from .replay import ReplayResult
 
 
-def quat_to_dcm_batch(q: np.ndarray) -> np.ndarray:
-    """(N, 4) q_nb -> (N, 3, 3) C_nb."""
-    q0, q1, q2, q3 = q.T
-    return np.stack(
-        [
-            np.stack([q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)], -1),
-            np.stack([2 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2 * (q2 * q3 - q0 * q1)], -1),
-            np.stack([2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3], -1),
-        ],
-        axis=1,
-    )
-
-
-def euler_batch(q: np.ndarray) -> np.ndarray:
-    """(N, 4) q_nb -> (N, 3) roll, pitch, yaw [rad] (ZYX)."""
-    C = quat_to_dcm_batch(q)
-    return np.stack(
-        [
-            np.arctan2(C[:, 2, 1], C[:, 2, 2]),
-            np.arctan2(-C[:, 2, 0], np.hypot(C[:, 2, 1], C[:, 2, 2])),
-            np.arctan2(C[:, 1, 0], C[:, 0, 0]),
-        ],
-        axis=-1,
-    )
-
-
 def antenna_llh(llh: np.ndarray, q_nb: np.ndarray, lever_arm_b) -> np.ndarray:
     """Move IMU positions (N, 3) to the antenna at lever_arm_b [m, FRD] using the attitude q_nb (N, 4)."""
-    lever_n = quat_to_dcm_batch(q_nb) @ np.asarray(lever_arm_b, dtype=float)
-    r_m, r_n = np.vectorize(earth.radii)(llh[:, 0])
-    out = llh.copy()
-    out[:, 0] += lever_n[:, 0] / (r_m + llh[:, 2])
-    out[:, 1] += lever_n[:, 1] / ((r_n + llh[:, 2]) * np.cos(llh[:, 0]))
-    out[:, 2] -= lever_n[:, 2]
-    return out
+    lever_n = quat_to_dcm(q_nb) @ np.asarray(lever_arm_b, dtype=float)
+    return llh + np.stack(earth.ned_to_dllh(lever_n.T, llh[:, 0], llh[:, 2]), -1)
 
 
 def ned_errors(llh_est: np.ndarray, llh_ref: np.ndarray) -> np.ndarray:
     """NED error [m] of estimated minus reference positions (N, 3), small-offset approximation."""
-    r_m, r_n = np.vectorize(earth.radii)(llh_ref[:, 0])
-    d = llh_est - llh_ref
-    return np.stack(
-        [d[:, 0] * (r_m + llh_ref[:, 2]), d[:, 1] * (r_n + llh_ref[:, 2]) * np.cos(llh_ref[:, 0]), -d[:, 2]], -1
-    )
+    return np.stack(earth.dllh_to_ned((llh_est - llh_ref).T, llh_ref[:, 0], llh_ref[:, 2]), -1)
 
 
 def _interp(t_query: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -112,7 +77,7 @@ def evaluate(ds: Dataset, res: ReplayResult) -> dict:
         v_est = _interp(t_ref, res.t_ns, res.v_n)
         m["velocity_rms_mps"] = _rms(np.linalg.norm(v_est - truth.v_n[sel], axis=1))
     if truth.euler is not None:
-        e_est = euler_batch(res.q_nb)
+        e_est = quat_to_euler(res.q_nb)
         idx = np.clip(np.searchsorted(res.t_ns, t_ref), 0, len(res.t_ns) - 1)
         d = wrap_angle(e_est[idx] - truth.euler[sel])
         m["attitude_rms_deg"] = {k: math.degrees(_rms(d[:, i])) for i, k in enumerate(("roll", "pitch", "yaw"))}
@@ -171,7 +136,7 @@ def write_outputs(out_dir: Path, ds: Dataset, res: ReplayResult, metrics: dict) 
     from .datasets import kfgins
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    euler = euler_batch(res.q_nb)
+    euler = quat_to_euler(res.q_nb)
     week = int(res.t_ns[0] // kfgins.WEEK_NS)  # 0 for data timed in seconds of week
     kfgins.write_nav(out_dir / "nav.txt", week, res.t_ns, res.llh, res.v_n, euler)
     header = "t_s,lat_deg,lon_deg,h_m,vn_mps,ve_mps,vd_mps,roll_deg,pitch_deg,yaw_deg,std_n_m,std_e_m,std_d_m,outage"

@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from zennav.metrics import euler_batch, evaluate
-from zennav.nav.rotation import wrap_angle
+from zennav.metrics import evaluate
+from zennav.nav.rotation import quat_to_euler, wrap_angle
 from zennav.nav.types import NS
 from zennav.replay import run_replay
 
@@ -27,7 +27,7 @@ def runs(rtklib_dataset):
 def test_heading_unknown_aligns_in_motion_and_agrees_with_the_given_run(runs):
     given, _, unknown, _ = runs
     assert np.array_equal(given.t_ns, unknown.t_ns)
-    diff = np.degrees(np.abs(wrap_angle(euler_batch(unknown.q_nb)[:, 2] - euler_batch(given.q_nb)[:, 2])))
+    diff = np.degrees(np.abs(wrap_angle(quat_to_euler(unknown.q_nb)[:, 2] - quat_to_euler(given.q_nb)[:, 2])))
     t_s = (unknown.t_ns - unknown.t_ns[0]) / NS
     agree_s = t_s[np.flatnonzero(diff >= 1.0)[-1] + 1]
     al = unknown.status["alignment"]

@@ -9,11 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from zennav.metrics import euler_batch, ned_errors
+from zennav.metrics import ned_errors
 from zennav.nav import earth
 from zennav.nav.alignment import course_alignment, level, levelling_std, static_alignment
 from zennav.nav.navigator import Navigator
-from zennav.nav.rotation import wrap_angle
+from zennav.nav.rotation import quat_to_euler, wrap_angle
 from zennav.nav.types import NS, ImuNoise, InitialState, NavConfig
 from zennav.replay import run_replay
 from zennav.sim.scenarios import IMU_GRADES, make_dataset
@@ -83,7 +83,7 @@ def heading_unknown(initial: InitialState, rng) -> InitialState:
 
 def yaw_errors_deg(ds, res) -> np.ndarray:
     k = np.searchsorted(ds.truth.t_ns, res.t_ns)
-    return np.degrees(np.abs(wrap_angle(euler_batch(res.q_nb)[:, 2] - ds.truth.euler[k, 2])))
+    return np.degrees(np.abs(wrap_angle(quat_to_euler(res.q_nb)[:, 2] - ds.truth.euler[k, 2])))
 
 
 def test_in_motion_alignment_from_unknown_heading_within_60s_of_driving():
@@ -143,7 +143,7 @@ def test_in_motion_without_tilt_takes_roll_zero_and_climb_angle():
     al = res.status["alignment"]
     assert al["method"] == "in_motion" and al["tilt_source"] == "climb_angle"
     fine = int(np.searchsorted(res.t_ns, al["times_ns"]["fine"]))
-    e0 = euler_batch(res.q_nb[fine:fine + 1])[0]
+    e0 = quat_to_euler(res.q_nb[fine:fine + 1])[0]
     assert e0[0] == 0.0 and abs(math.degrees(wrap_angle(e0[2] - ds.truth.euler[k0 + fine, 2]))) < 3.0
     assert yaw_errors_deg(ds, res)[-1] < 1.0
 

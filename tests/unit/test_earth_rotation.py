@@ -76,3 +76,45 @@ def test_rotation_conventions():
     assert np.allclose(rot.rotvec_to_dcm([0, 0, 0.7]), rot.euler_to_dcm([0, 0, 0.7]))
     assert rot.skew([1, 2, 3]) @ np.array([4, 5, 6]) == pytest.approx(np.cross([1, 2, 3], [4, 5, 6]))
     assert rot.wrap_angle(np.array([math.pi + 0.1, -math.pi - 0.1]))== pytest.approx([-math.pi + 0.1, math.pi - 0.1])
+
+
+def test_small_ned_offsets_and_llh_increments_are_inverse_and_match_d_inverse():
+    lat, h = math.radians(47.3), 512.0
+    d_ned = (12.5, -3.25, 0.75)
+    dllh = earth.ned_to_dllh(d_ned, lat, h)
+    np.testing.assert_allclose(earth.dllh_to_ned(dllh, lat, h), d_ned, rtol=1e-15)
+    assert dllh[2] == -0.75
+    np.testing.assert_allclose(np.array(dllh), earth.dr_to_dllh(lat, h) * d_ned, rtol=1e-15)
+    lats, hs = np.radians([-60.0, 0.0, 45.0]), np.array([0.0, 100.0, -20.0])  # arrays: element by element the same
+    batch = np.stack(earth.ned_to_dllh(np.tile(d_ned, (3, 1)).T, lats, hs), -1)
+    assert np.array_equal(batch, [earth.ned_to_dllh(d_ned, float(a), float(b)) for a, b in zip(lats, hs)])
+    # Against the exact conversion: first order in the offset.
+    exact = earth.llh_to_ned(np.array([lat, 0.0, h]) + dllh, np.array([lat, 0.0, h]))
+    np.testing.assert_allclose(exact, d_ned, atol=1e-4)
+
+
+def test_batch_rotations_equal_the_scalar_ones():
+    rng = np.random.default_rng(3)
+    q = np.array([rot.quat_normalize(x) for x in rng.standard_normal((50, 4))])
+    C = rot.quat_to_dcm(q)
+    assert C.shape == (50, 3, 3) and all(np.array_equal(C[i], rot.quat_to_dcm(q[i])) for i in range(50))
+    e = rot.quat_to_euler(q)  # numpy's and math's atan2 may differ in the last bit
+    assert e.shape == (50, 3)
+    np.testing.assert_allclose(e, [rot.quat_to_euler(x) for x in q], rtol=0.0, atol=1e-15)
+
+
+def test_strapdown_position_step_is_ned_to_dllh_of_the_trapezoid_displacement():
+    """strapdown.mechanize inlines the position update (hot loop): the same formula as earth.ned_to_dllh with the
+    meridian radius at the start latitude and the prime-vertical radius at the mid latitude, both at the mid
+    height."""
+    from zennav.nav.strapdown import NavState, mechanize
+
+    s = NavState(math.radians(30.0), math.radians(114.0), 50.0, 20.0, -7.0, 0.5, 1.0, 0.0, 0.0, 0.0)
+    s0, dt = s.copy(), 0.01
+    mechanize(s, (0.0, 0.0, 0.0), (0.01, -0.02, -0.0980665), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), dt)
+    d_ned = (0.5 * (s0.vn + s.vn) * dt, 0.5 * (s0.ve + s.ve) * dt, 0.5 * (s0.vd + s.vd) * dt)
+    hm = 0.5 * (s0.h + s.h)
+    assert s.h - s0.h == pytest.approx(earth.ned_to_dllh(d_ned, s0.lat, hm)[2], rel=1e-9)
+    assert s.lat - s0.lat == pytest.approx(earth.ned_to_dllh(d_ned, s0.lat, hm)[0], rel=1e-12)
+    latm = 0.5 * (s0.lat + s.lat)
+    assert s.lon - s0.lon == pytest.approx(earth.ned_to_dllh(d_ned, latm, hm)[1], rel=1e-12)

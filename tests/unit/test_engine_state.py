@@ -65,7 +65,8 @@ class Drive:
             fused = [nav.on_correction(q, *self.answers.predict(q)) for q in self.held]
             samples, self.held = nav.pop_samples(), nav.pop_queries()
             self.answers.add(samples)
-            out += [fused, [vars(s) for s in samples], [vars(q) for q in self.held], [vars(r) for r in nav.pop_reports()]]
+            out += [fused, [vars(s) for s in samples], [vars(q) for q in self.held],
+                    [vars(r) for r in nav.pop_reports()]]
         return _pack(out)
 
 

@@ -48,6 +48,7 @@ from itertools import repeat
 
 import numpy as np
 
+from zennav.nav import alignment
 from zennav.nav.earth import G0
 from zennav.nav.rotation import euler_to_quat
 
@@ -248,9 +249,7 @@ class AdaptiveComplementaryFilter:
 
     def level(self, f_b) -> None:
         """Set roll and pitch from specific force f_b [m/s^2] ((3,) or (M, 3), averaged), yaw 0."""
-        fx, fy, fz = np.mean(np.atleast_2d(np.asarray(f_b, dtype=float)), axis=0)
-        roll = math.atan2(-fy, -fz)
-        pitch = math.atan2(fx, math.hypot(fy, fz))
+        roll, pitch = alignment.level(np.mean(np.atleast_2d(np.asarray(f_b, dtype=float)), axis=0))
         self._q = tuple(float(v) for v in euler_to_quat((roll, pitch, 0.0)))
 
     # -- processing --------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ from scipy.signal import butter, filtfilt
 
 from zennav.datasets.errors import DataError, existing_file, read_table
 from zennav.nav import earth
+from zennav.nav.alignment import level
 from zennav.nav.rotation import euler_to_dcm
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
 
@@ -158,7 +159,7 @@ def _initial_state(imu: ImuData, gnss: GnssData, pos_path: Path) -> tuple[Initia
     still = imu.t_ns < t_still
     dt = np.diff(imu.t_ns[still]) / NS
     f_b = imu.dvel[still][1:].sum(axis=0) / dt.sum()
-    roll, pitch = math.atan2(-f_b[1], -f_b[2]), math.atan2(f_b[0], math.hypot(f_b[1], f_b[2]))
+    roll, pitch = level(f_b)
 
     def at_t0(values):
         return np.array([np.interp(t0, gnss.t_ns, values[:, i]) for i in range(3)])

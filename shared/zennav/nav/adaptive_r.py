@@ -93,8 +93,8 @@ class AdaptiveR:
 
     def get_state(self) -> dict:
         """The estimator's evolving state (plain, msgpack-safe); the settings come from the constructor."""
-        return {"k": int(self.k), "scale": self.scale.tolist(), "C": [c.tolist() for c in self._C], "R": self.R.tolist(),
-                "branch": self.branch, "counts": dict(self.counts)}
+        return {"k": int(self.k), "scale": self.scale.tolist(), "C": [c.tolist() for c in self._C],
+                "R": self.R.tolist(), "branch": self.branch, "counts": dict(self.counts)}
 
     def set_state(self, st: dict) -> None:
         self.k, self.scale, self.R = int(st["k"]), np.array(st["scale"], dtype=float), np.array(st["R"], dtype=float)

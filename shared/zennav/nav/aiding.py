@@ -12,7 +12,6 @@ Body velocity v_b = C_bn v_n: C_bn_hat v_hat = C_bn (I + [phi x]) (v_n + dv) ~ v
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -25,15 +24,9 @@ from .strapdown import NavState
 def position_model(s: NavState, lever_b: np.ndarray, fix_llh: np.ndarray, v_ant_n: np.ndarray, age_s: float):
     """z = INS antenna position minus the fix [m, NED] and H (3x15). A fix age_s seconds older than the state
     is moved forward along the antenna velocity v_ant_n first."""
-    r_m, r_n = earth.radii(s.lat)
     lever_n = s.C_nb @ lever_b
-    z = np.array(
-        [
-            (s.lat - fix_llh[0]) * (r_m + s.h) + lever_n[0],
-            (s.lon - fix_llh[1]) * (r_n + s.h) * math.cos(s.lat) + lever_n[1],
-            (fix_llh[2] - s.h) + lever_n[2],
-        ]
-    ) - v_ant_n * age_s
+    d_n, d_e, d_d = earth.dllh_to_ned((s.lat - fix_llh[0], s.lon - fix_llh[1], s.h - fix_llh[2]), s.lat, s.h)
+    z = np.array([d_n + lever_n[0], d_e + lever_n[1], d_d + lever_n[2]]) - v_ant_n * age_s
     H = np.zeros((3, N_STATES))
     H[:, POS] = np.eye(3)
     H[:, ATT] = skew(lever_n)

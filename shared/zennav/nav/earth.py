@@ -118,8 +118,23 @@ def ned_to_llh(r_n, llh_ref) -> np.ndarray:
     return ecef_to_llh(r_e)
 
 
-def dr_to_dllh(lat: float, h: float) -> np.ndarray:
-    """Diagonal of D^-1: small NED offsets [m] -> (dlat, dlon, dh) [rad, rad, m] at latitude lat, height h;
-    (3,) for scalars, (N, 3) for arrays of shape (N,)."""
+def ned_to_dllh(d_ned, lat, h) -> tuple:
+    """Small NED offset d_ned = (dN, dE, dD) [m] at latitude lat [rad], height h [m] -> (dlat, dlon, dh) [rad, rad, m]
+    (curvilinear, first order); floats, or arrays of one shape. Inlined in strapdown.mechanize (hot loop)."""
     r_m, r_n = radii(lat)
-    return np.array([1.0 / (r_m + h), 1.0 / ((r_n + h) * _xp(lat).cos(lat)), -1.0 + 0.0 * (lat + h)]).T
+    d_n, d_e, d_d = d_ned
+    return d_n / (r_m + h), d_e / ((r_n + h) * _xp(lat).cos(lat)), -d_d
+
+
+def dllh_to_ned(dllh, lat, h) -> tuple:
+    """Inverse of ned_to_dllh: (dlat, dlon, dh) [rad, rad, m] at latitude lat [rad], height h [m] -> small NED
+    offset (dN, dE, dD) [m]; floats, or arrays of one shape."""
+    r_m, r_n = radii(lat)
+    d_lat, d_lon, d_h = dllh
+    return d_lat * (r_m + h), d_lon * (r_n + h) * _xp(lat).cos(lat), -d_h
+
+
+def dr_to_dllh(lat: float, h: float) -> np.ndarray:
+    """Diagonal of D^-1 (ned_to_dllh of a 1 m offset on each axis): (3,) for scalars, (N, 3) for arrays of
+    shape (N,)."""
+    return np.array(ned_to_dllh((1.0, 1.0, 1.0 + 0.0 * (lat + h)), lat, h)).T

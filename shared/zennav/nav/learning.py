@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .earth import radii
+from .earth import dllh_to_ned
 from .rotation import wrap_angle
 from .strapdown import NavState, mechanize
 
@@ -106,7 +106,7 @@ class FeatureWindow:
                 "yaw0": float(self.yaw0)}
 
     @classmethod
-    def from_state(cls, st: dict) -> "FeatureWindow":
+    def from_state(cls, st: dict) -> FeatureWindow:
         w = cls(float(st["yaw0"]))
         w.dtheta, w.dvel, w.sq = ([float(x) for x in st[k]] for k in ("dtheta", "dvel", "sq"))
         w.dt = float(st["dt"])
@@ -153,11 +153,11 @@ class Shadow:
                 "window": self.window.get_state(), "last_sample_ns": int(self.last_sample_ns)}
 
     @classmethod
-    def from_state(cls, st: dict) -> "Shadow":
+    def from_state(cls, st: dict) -> Shadow:
         sh = cls.__new__(cls)
         sh.t0_ns, sh.state = int(st["t0_ns"]), NavState(*(float(x) for x in st["state"]))
         sh.bg, sh.ba = [float(x) for x in st["bg"]], [float(x) for x in st["ba"]]
-        sh.prev = tuple(tuple(float(x) for x in p) for p in st["prev"])
+        sh.prev = (tuple(float(x) for x in st["prev"][0]), tuple(float(x) for x in st["prev"][1]))
         sh.window, sh.last_sample_ns = FeatureWindow.from_state(st["window"]), int(st["last_sample_ns"])
         return sh
 
@@ -279,5 +279,4 @@ def _body_features(sums, sq_sums, dt: float) -> np.ndarray:
 
 def _ne_offset(a: NavState, b: NavState) -> np.ndarray:
     """North and east offset [m] of a from b (small-offset form at b)."""
-    r_m, r_n = radii(b.lat)
-    return np.array([(a.lat - b.lat) * (r_m + b.h), (a.lon - b.lon) * (r_n + b.h) * math.cos(b.lat)])
+    return np.array(dllh_to_ned((a.lat - b.lat, a.lon - b.lon, a.h - b.h), b.lat, b.h)[:2])

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from . import earth
-from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, Measurement, build_sources
+from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, GnssPosition, Measurement, build_sources
 from .alignment import Alignment
 from .eskf import ATT, BA, BG, N_STATES, POS, VEL, ErrorStateKF, discretize, error_model, initial_covariance, \
     process_noise_psd
@@ -45,8 +45,9 @@ STATE_FORMAT = "zennav.nav.Navigator/1"
 
 @dataclass
 class NavSolution:
-    """Navigation solution of the IMU at t_ns: llh [rad, rad, m], v_n [m/s, NED], q_nb, euler (roll, pitch, yaw) [rad],
-    bias estimates [rad/s, m/s^2, body], 1-sigma of position [m, NED], velocity [m/s] and attitude error about N, E, D [rad]."""
+    """Navigation solution of the IMU at t_ns: llh [rad, rad, m], v_n [m/s, NED], q_nb, euler (roll, pitch, yaw)
+    [rad], bias estimates [rad/s, m/s^2, body], 1-sigma of position [m, NED], velocity [m/s] and attitude error
+    about N, E, D [rad]; gnss_state a GnssState."""
 
     t_ns: int
     llh: np.ndarray
@@ -82,9 +83,10 @@ class Navigator:
         self.lever_b = np.asarray(config.lever_arm_b, dtype=float)
         self._q_psd = process_noise_psd(config.imu_noise)
         self._gates: dict[int, float | None] = {}
-        self._prev_dtheta = (0.0, 0.0, 0.0)
-        self._prev_dvel = (0.0, 0.0, 0.0)
-        self._omega_dt = ((0.0, 0.0, 0.0), 1.0)  # last bias-corrected angle increment [rad] and its interval [s]
+        self._prev_dtheta: tuple[float, ...] = (0.0, 0.0, 0.0)
+        self._prev_dvel: tuple[float, ...] = (0.0, 0.0, 0.0)
+        # the last bias-corrected angle increment [rad] and its interval [s]
+        self._omega_dt: tuple[tuple[float, ...], float] = ((0.0, 0.0, 0.0), 1.0)
         self._cov_dt = 0.0
         self._cov_dvel = [0.0, 0.0, 0.0]
         self._pending: list[GnssFix] = []
@@ -98,7 +100,8 @@ class Navigator:
         self._step_sources: list[AidSource] = []
         for src in build_sources(config, self.t_ns):
             self.add_source(src)
-        self.gnss_pos = self.sources["gnss_pos"]  # the GNSS state and the outage clock
+        # the GNSS state and the outage clock
+        self.gnss_pos = next(s for s in self.sources.values() if isinstance(s, GnssPosition))
         self.alignment = Alignment(config, initial, coarse)
         self.alignment.start(self)
         self._update_stds()
@@ -164,7 +167,7 @@ class Navigator:
         self.sources[source.name] = source
         for kind in source.inputs:
             self._inputs.setdefault(kind, []).append(source)
-        if source.on_step is not None:
+        if type(source).on_step is not AidSource.on_step:
             self._step_sources.append(source)
 
     def on_attitude(self, t_ns: int, roll: float, pitch: float, std: float) -> bool:
@@ -347,8 +350,8 @@ class Navigator:
         s = self.state
         lat, lon, h, vn, ve, vd = s.lat, s.lon, s.h, s.vn, s.ve, s.vd
         mechanize(s, dth, dv, self._prev_dtheta, self._prev_dvel, dt)
-        r_m, r_n = earth.radii(lat)
-        s.lat, s.lon, s.h = lat + vn * dt / (r_m + h), lon + ve * dt / ((r_n + h) * math.cos(lat)), h - vd * dt
+        d_lat, d_lon, d_h = earth.ned_to_dllh((vn * dt, ve * dt, vd * dt), lat, h)
+        s.lat, s.lon, s.h = lat + d_lat, lon + d_lon, h + d_h
         s.vn, s.ve, s.vd = vn, ve, vd
         self._prev_dtheta, self._prev_dvel = dth, dv
         self.t_ns = t_ns

@@ -45,15 +45,17 @@ def quat_normalize(q) -> np.ndarray:
 
 
 def quat_to_dcm(q) -> np.ndarray:
-    """C_ab from q_ab."""
-    q0, q1, q2, q3 = q
-    return np.array(
+    """C_ab from q_ab: (4,) -> (3, 3), or (N, 4) -> (N, 3, 3)."""
+    batch = np.ndim(q) == 2
+    q0, q1, q2, q3 = np.asarray(q).T if batch else q
+    C = np.array(
         [
             [q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)],
             [2 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2 * (q2 * q3 - q0 * q1)],
             [2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3],
         ]
     )
+    return np.moveaxis(C, -1, 0) if batch else C
 
 
 def dcm_to_quat(C) -> np.ndarray:
@@ -93,11 +95,13 @@ def euler_to_dcm(euler) -> np.ndarray:
 
 
 def dcm_to_euler(C) -> np.ndarray:
-    """ZYX Euler angles (roll, pitch, yaw) [rad] from C_nb; yaw in (-pi, pi]."""
-    pitch = math.atan2(-C[2, 0], math.hypot(C[2, 1], C[2, 2]))
-    roll = math.atan2(C[2, 1], C[2, 2])
-    yaw = math.atan2(C[1, 0], C[0, 0])
-    return np.array([roll, pitch, yaw])
+    """ZYX Euler angles (roll, pitch, yaw) [rad] from C_nb; yaw in (-pi, pi]. (3, 3) -> (3,), or (N, 3, 3) -> (N, 3)."""
+    C = np.asarray(C)
+    xp = np if C.ndim == 3 else math
+    pitch = xp.atan2(-C[..., 2, 0], xp.hypot(C[..., 2, 1], C[..., 2, 2]))
+    roll = xp.atan2(C[..., 2, 1], C[..., 2, 2])
+    yaw = xp.atan2(C[..., 1, 0], C[..., 0, 0])
+    return np.stack([roll, pitch, yaw], -1) if xp is np else np.array([roll, pitch, yaw])
 
 
 def euler_to_quat(euler) -> np.ndarray:
@@ -115,7 +119,7 @@ def euler_to_quat(euler) -> np.ndarray:
 
 
 def quat_to_euler(q) -> np.ndarray:
-    """ZYX Euler angles (roll, pitch, yaw) [rad] from q_nb."""
+    """ZYX Euler angles (roll, pitch, yaw) [rad] from q_nb: (4,) -> (3,), or (N, 4) -> (N, 3)."""
     return dcm_to_euler(quat_to_dcm(q))
 
 

@@ -46,10 +46,10 @@ class NavState:
     q3: float
 
     @classmethod
-    def from_arrays(cls, llh, v_n, q_nb) -> "NavState":
+    def from_arrays(cls, llh, v_n, q_nb) -> NavState:
         return cls(*(float(x) for x in (*llh, *v_n, *q_nb)))
 
-    def copy(self) -> "NavState":
+    def copy(self) -> NavState:
         return NavState(self.lat, self.lon, self.h, self.vn, self.ve, self.vd, self.q0, self.q1, self.q2, self.q3)
 
     @property

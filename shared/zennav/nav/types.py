@@ -30,7 +30,7 @@ class _StrEnum(str, Enum):
     """A str that is an enum member: compares equal to, formats and msgpack-packs as its value ("valid")."""
 
     __str__ = str.__str__
-    __format__ = str.__format__
+    __format__ = str.__format__  # type: ignore[assignment]
 
 
 class GnssState(_StrEnum):
@@ -62,11 +62,11 @@ class ImuData:
     def __len__(self) -> int:
         return len(self.t_ns)
 
-    def slice(self, sel) -> "ImuData":
+    def slice(self, sel) -> ImuData:
         return ImuData(self.t_ns[sel], self.dtheta[sel], self.dvel[sel])
 
     @classmethod
-    def from_rates(cls, t_ns, omega_ib_b, f_ib_b) -> "ImuData":
+    def from_rates(cls, t_ns, omega_ib_b, f_ib_b) -> ImuData:
         """Increments from rates sampled at t_ns: angular rate [rad/s] and specific force [m/s^2], frame b.
 
         Trapezoid rule over each interval: dtheta_k = (w_{k-1} + w_k) / 2 * (t_k - t_{k-1}), the same for dvel.
@@ -110,7 +110,7 @@ class GnssData:
     def __len__(self) -> int:
         return len(self.t_ns)
 
-    def fix_at(self, k: int) -> "GnssFix":
+    def fix_at(self, k: int) -> GnssFix:
         has_v = self.v_n is not None
         return GnssFix(
             t_ns=int(self.t_ns[k]),
@@ -122,7 +122,7 @@ class GnssData:
             num_sats=int(self.num_sats[k]),
         )
 
-    def slice(self, sel) -> "GnssData":
+    def slice(self, sel) -> GnssData:
         has_v = self.v_n is not None
         return GnssData(
             self.t_ns[sel],
@@ -150,7 +150,8 @@ class GnssFix:
 
 @dataclass
 class Truth:
-    """Reference trajectory: llh (K, 3) [rad, rad, m], v_n (K, 3) [m/s] or None, euler (K, 3) roll/pitch/yaw [rad] or None."""
+    """Reference trajectory: llh (K, 3) [rad, rad, m], v_n (K, 3) [m/s] or None, euler (K, 3) roll/pitch/yaw [rad]
+    or None."""
 
     t_ns: np.ndarray
     llh: np.ndarray
@@ -273,7 +274,7 @@ class NavConfig:
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 
-    def with_(self, **kw) -> "NavConfig":
+    def with_(self, **kw) -> NavConfig:
         return replace(self, **kw)
 
 

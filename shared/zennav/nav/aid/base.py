@@ -77,7 +77,8 @@ class AidSource:
         """Fuse one input (its kind in ``inputs``) into the engine ``nav``; returns whether a measurement was fused."""
         raise NotImplementedError
 
-    on_step = None  # optional: on_step(nav) after every IMU sample (e.g. a timeout)
+    def on_step(self, nav) -> None:
+        """After every IMU sample (e.g. a timeout); the engine calls it only where a subclass defines it."""
 
     def report(self, nav, t_ns: int, observation, innovation, innovation_var, test_ratio: float, fused: bool,
                reason: str = "", faults=()) -> None:
