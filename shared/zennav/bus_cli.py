@@ -62,16 +62,21 @@ def router_cmd(listen, connect, zenoh_config, vehicle):
 
 @click.command("launch")
 @click.argument("launch_file", type=click.Path(exists=True, dir_okay=False))
-@click.option("--rendezvous", default=None, help="override the file's rendezvous endpoint")
+@click.option("--rendezvous", default=None,
+              help="the router's endpoint, overriding the file's (deploy/trainer.yaml has none: the edge's address)")
 @click.option("--vehicle", default=None, help="override the file's vehicle")
 @click.option("--until", default=None, help="stop everything once this service exits (e.g. ingest)")
 def launch_cmd(launch_file, rendezvous, vehicle, until):
-    """Start the process set described in LAUNCH_FILE (deploy/local.yaml, deploy/edge.yaml), wait on
-    liveliness until all are up, prefix each log line with the service name, restart per policy, stop all
-    cleanly on Ctrl-C."""
+    """Start the process set described in LAUNCH_FILE (deploy/local.yaml, deploy/edge.yaml, and on another host
+    deploy/trainer.yaml --rendezvous tcp/<edge-ip>:7447), wait on liveliness until all are up, prefix each log
+    line with the service name, restart per policy, stop all cleanly on Ctrl-C."""
     from .launch import launch_main
 
-    sys.exit(launch_main(launch_file, rendezvous, vehicle, until))
+    try:
+        code = launch_main(launch_file, rendezvous, vehicle, until)
+    except (ValueError, KeyError, OSError) as e:
+        raise click.ClickException(f"launch file: {e}") from None
+    sys.exit(code)
 
 
 @click.command("monitor", context_settings=_PASS)

@@ -6,8 +6,9 @@ Launch file (YAML)::
 
     name: local                      # shown in the log
     vehicle: car                     # ZENNAV_VEHICLE of every service
-    rendezvous: tcp/127.0.0.1:7447   # the endpoint services connect to ({rendezvous} in commands)
-    mode: peer                       # ZENNAV_MODE of the services (peer | client)
+    rendezvous: tcp/127.0.0.1:7447   # the endpoint services connect to ({rendezvous} in commands); a set that
+                                     # runs on another host than its router leaves it out: --rendezvous then
+    mode: peer                       # ZENNAV_MODE of the services (peer | client: e.g. deploy/trainer.yaml)
     up_timeout_s: 60                 # how long to wait for everything to be alive
     stop_timeout_s: 10               # SIGTERM, then SIGKILL after this
     services:
@@ -67,6 +68,10 @@ class LaunchSpec:
 def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
     data = yaml.safe_load(Path(path).read_text())
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    if not data.get("rendezvous"):
+        raise ValueError(f"{path}: no rendezvous: give the router's endpoint, e.g. --rendezvous tcp/<router-ip>:7447")
+    if str(data.get("mode", "peer")) not in ("peer", "client"):
+        raise ValueError(f"{path}: mode must be peer or client")
     services = []
     for s in data.get("services", []):
         restart = str(s.get("restart", "no")).lower()
@@ -86,7 +91,7 @@ def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
     if len(set(names)) != len(names):
         raise ValueError("service names must be unique")
     return LaunchSpec(name=str(data.get("name", Path(path).stem)), vehicle=str(data.get("vehicle", "car")),
-                      rendezvous=str(data.get("rendezvous", "tcp/127.0.0.1:7447")),
+                      rendezvous=str(data["rendezvous"]),
                       mode=str(data.get("mode", "peer")), up_timeout_s=float(data.get("up_timeout_s", 60)),
                       stop_timeout_s=float(data.get("stop_timeout_s", 10)), services=services)
 
@@ -172,8 +177,10 @@ class Launcher:
             else:
                 from .bus import Bus
 
-                self.bus = Bus(f"launch-{os.getpid()}", self.spec.vehicle, mode="peer", connect=[self.spec.rendezvous],
-                               listen=["tcp/127.0.0.1:0"], token=False)
+                client = self.spec.mode == "client"  # a set on another host than its router: a client of it
+                self.bus = Bus(f"launch-{os.getpid()}", self.spec.vehicle, mode=self.spec.mode,
+                               connect=[self.spec.rendezvous], listen=None if client else ["tcp/127.0.0.1:0"],
+                               token=False)
             self.bus.watch_alive(self._on_alive)
         return self.bus
 
@@ -187,9 +194,9 @@ class Launcher:
         t0 = time.monotonic()
         deadline = t0 + self.spec.up_timeout_s
         try:
-            self._ensure_bus()  # a peer of the rendezvous; it retries in the background until that is up
             self.say("launch", f"{self.spec.name}: {len(self.children)} services, rendezvous "
                                f"{self.spec.rendezvous}, vehicle {self.spec.vehicle}")
+            self._ensure_bus()  # a peer of the rendezvous retries in the background; a client waits for it
             for c in self.children.values():
                 while not all(self._is_alive(a) for a in c.spec.after):
                     if self._stop.is_set():

@@ -94,3 +94,26 @@ def test_record_mcap_and_replay_reproduce_solution(cluster, tmp_path):
     assert all(all(a[f] == b[f] for f in fields) for a, b in zip(recorded, got)), "replay differs"
     t = np.array([m["t_ns"] for m in got])
     assert np.all(np.diff(t) > 0)
+
+
+def test_trainer_set_joins_an_edge_router_as_a_client(cluster):
+    """deploy/trainer.yaml on "another host": `zennav launch deploy/trainer.yaml --rendezvous <edge router>` starts
+    the trainer as a zenoh client of that router (the launch file has no address of its own); the edge side (here
+    the test's session behind a `zennav router`) sees it alive; Ctrl-C stops it cleanly."""
+    from zennav.params import DEPLOY_DIR
+
+    port = free_port()
+    router = cluster.zennav("router", "router", "--listen", f"tcp/127.0.0.1:{port}", "--connect", cluster.endpoint,
+                            "--vehicle", cluster.vehicle)
+    cluster.wait_alive(["router"], 30, router)
+    launch = cluster.zennav("launch", "launch", str(DEPLOY_DIR / "trainer.yaml"), "--rendezvous",
+                            f"tcp/127.0.0.1:{port}", "--vehicle", cluster.vehicle)
+    wait_until(lambda: "all 1 services up" in launch.text(), 90, "launch: the trainer up")
+    cluster.wait_alive(["trainer"], 20, launch)
+    m = re.search(r"started trainer \(pid (\d+)\): \S*zennav-trainer$", launch.text(), re.M)
+    assert m, launch.text()
+    env = open(f"/proc/{m.group(1)}/environ", "rb").read().split(b"\0")
+    assert b"ZENNAV_MODE=client" in env and f"ZENNAV_CONNECT=tcp/127.0.0.1:{port}".encode() in env
+    launch.p.send_signal(signal.SIGINT)
+    assert launch.wait(30) == 0 and "stopped (ok)" in launch.text()
+    cluster.wait_alive(["trainer"], 20, launch, alive=False)
