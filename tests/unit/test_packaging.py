@@ -26,6 +26,8 @@ def test_wheel_holds_only_the_zennav_tree(tmp_path):
     roots = {n.split("/")[0] for n in names}
     assert roots == {"zennav", next(r for r in roots if r.endswith(".dist-info"))}
     assert "zennav/nav/navigator.py" in names and "zennav/services/__init__.py" in names
+    assert {"zennav/messages/__init__.py", "zennav/messages/validate.py", "zennav/nodes/ins.py", "zennav/params.py",
+            "zennav/stream.py"} <= set(names)
     assert "zennav/__init__.py" not in names  # a PEP 420 namespace shared by both folders
     entry_points = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
     assert "zennav = zennav.cli:main" in entry_points
