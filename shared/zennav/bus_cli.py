@@ -160,7 +160,7 @@ def bus_replay_cmd(recording, keys, speed, wait_for, wait_timeout, raw, vehicle,
     """Publish an MCAP recording back onto the bus with its original timing or faster."""
     from .bus import Bus
     from .recording import replay
-    from .service import setup_logging
+    from .service import EndAcks, setup_logging
 
     setup_logging("INFO")
     sp = 0.0 if str(speed).lower() in ("0", "max", "inf") else float(speed)
@@ -184,27 +184,12 @@ def bus_replay_cmd(recording, keys, speed, wait_for, wait_timeout, raw, vehicle,
         while waits and not all(p.matching for p in bus._pubs.values()) and time.monotonic() < deadline:
             if ev.wait(0.01):
                 break
+        acks = EndAcks(bus)
         t0 = time.monotonic()
         counts = replay(bus, recording, pats, sp, vehicle, ev, raw)
         click.echo(f"replayed {sum(counts.values())} messages on {len(counts)} keys in "
                    f"{time.monotonic() - t0:.2f} s", err=True)
-        if "ins" in waits:
-            _wait_ins_done(bus, ev, wait_timeout)
+        if "ins" in waits:  # keep the session open until every ins acknowledged the replayed stream's end
+            acks.wait(None, wait_timeout, ev.is_set)
     finally:
         bus.close()
-
-
-def _wait_ins_done(bus, ev, timeout) -> None:
-    """Keep the session open until the ins acknowledged the replayed stream's end (closing earlier could drop
-    messages still queued), or timeout."""
-    done = threading.Event()
-
-    def on_status(key, msg, recv_ns):
-        st = msg.get("stream") or {}
-        if st.get("src") == bus.src and st.get("done"):
-            done.set()
-
-    bus.subscribe(bus.keys.nav_status(), on_status, channel="ring")
-    deadline = time.monotonic() + timeout
-    while not done.wait(0.1) and not ev.is_set() and time.monotonic() < deadline:
-        pass

@@ -144,6 +144,46 @@ class ServiceRunner:
         self.log.info("%s stopped", self.name)
 
 
+class EndAcks:
+    """The ins instances that follow a sensor stream published by ``src`` (this bus's) and their acknowledgement
+    of its end (a nav status of the stream with done and its last cseq), seen on the ins's status key and on
+    every --nav-prefix ins's: the publisher of a stream keeps its session open until all have it, since closing
+    drops what is still queued."""
+
+    def __init__(self, bus):
+        self.src = bus.src
+        self.following: set[str] = set()  # status publishers that reported on this stream ...
+        self.acks: dict[str, int] = {}  # ... and the last cseq each acknowledged
+        self._cv = threading.Condition()
+        for key in (bus.keys.nav_status(), f"{bus.keys.base}/nav/*/status"):
+            bus.subscribe(key, self._on_status, channel="ring", name="acks")
+
+    def _on_status(self, key, msg, recv_ns) -> None:
+        st = msg["stream"]
+        if st.get("src") == self.src:
+            with self._cv:
+                self.following.add(msg["src"])
+                if st.get("done"):
+                    self.acks[msg["src"]] = int(st.get("last_cseq", -1))
+                self._cv.notify_all()
+
+    def wait(self, last_cseq: int | None, timeout: float, stop: Callable[[], bool] = lambda: False) -> bool:
+        """Wait until every ins that reported on the stream (at least one) acknowledged its end (at last_cseq;
+        None: any), or stop(), or timeout [s]; True when acknowledged."""
+        def acked() -> bool:
+            done = {s for s, c in self.acks.items() if last_cseq is None or c == last_cseq}
+            return bool(done) and self.following <= done
+
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while not acked() and not stop():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cv.wait(min(left, 0.2))
+            return acked()
+
+
 def wall_ns() -> int:
     return time.time_ns()
 

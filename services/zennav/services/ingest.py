@@ -28,12 +28,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
 import time
 from dataclasses import replace
 
 from zennav.replay import parse_outage, parse_outage_every, sensor_events
-from zennav.service import ServiceRunner, add_bus_args
+from zennav.service import EndAcks, ServiceRunner, add_bus_args
 from zennav.stream import stream_messages
 
 
@@ -104,21 +103,7 @@ def main(argv=None) -> int:
         raise SystemExit("--batch N needs N >= 1, and N > 1 only with --speed 0 (paced samples go one by one)")
     stats = {"imu": 0, "gnss": 0, "cseq": 0}
     run.counters = lambda: dict(stats)
-    following: set[str] = set()  # the ins instances (status publishers) that follow this stream ...
-    acks: dict[str, int] = {}  # ... and the last cseq each acknowledged
-    ack_cv = threading.Condition()
-
-    def on_status(key, msg, recv_ns):
-        st = msg["stream"]
-        if st.get("src") == run.bus.src:
-            with ack_cv:
-                following.add(msg["src"])
-                if st.get("done"):
-                    acks[msg["src"]] = int(st.get("last_cseq", -1))
-                ack_cv.notify_all()
-
-    for status_key in (k.nav_status(), f"{k.base}/nav/*/status"):  # the ins, and any with --nav-prefix
-        run.bus.subscribe(status_key, on_status, channel="ring", name="status")
+    acks = EndAcks(run.bus)  # every ins following the stream, and its acknowledgement of the end
     p_stream = run.bus.publisher(k.stream())
     p_imu = run.bus.publisher(k.imu(args.imu_id))
     p_gnss = run.bus.publisher(k.gnss(args.gnss_id))
@@ -155,17 +140,9 @@ def main(argv=None) -> int:
             return 0
         log.info("stream done: %d IMU, %d GNSS, last cseq %d", stats["imu"], stats["gnss"], last_cseq)
         run.set_state("done", f"streamed {ds.name}: {stats['imu']} IMU, {stats['gnss']} GNSS")
-        if waits and "ins" in waits:
-            # closing the session drops what is still queued: keep it open until every ins that follows the
-            # stream (each has published a status of it by now) has consumed the end
-            def all_acked() -> bool:
-                done = {s for s, c in acks.items() if c == last_cseq}
-                return bool(done) and following <= done
-
-            with ack_cv:
-                ok = ack_cv.wait_for(lambda: all_acked() or run.stopping, args.ack_timeout)
-            log.info("end of stream %s by %s", "acknowledged" if ok and acks else "NOT acknowledged",
-                     sorted(following))
+        if waits and "ins" in waits:  # closing the session drops what is still queued: wait for every ins
+            ok = acks.wait(last_cseq, args.ack_timeout, lambda: run.stopping)
+            log.info("end of stream %s by %s", "acknowledged" if ok else "NOT acknowledged", sorted(acks.following))
         elif args.exit_on_end:
             run.wait(args.linger)  # no acknowledgement to wait for: give the queues time to drain
         if not args.exit_on_end:
