@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,7 +64,7 @@ def parse_outage_every(text: str) -> tuple[float, float, float]:
 def outage_windows(
     t0_ns: int,
     t_end_ns: int,
-    outages: list[tuple[float, float]] = (),
+    outages: Sequence[tuple[float, float]] = (),
     every: tuple[float, float, float] | None = None,
 ) -> list[tuple[int, int]]:
     """GNSS-withholding windows [start_ns, end_ns) from (start_s, duration_s) pairs and an optional
@@ -82,7 +83,7 @@ def outage_windows(
 
 def sensor_events(
     ds: Dataset,
-    outages: list[tuple[float, float]] = (),
+    outages: Sequence[tuple[float, float]] = (),
     outage_every: tuple[float, float, float] | None = None,
 ) -> tuple[list[tuple[int, int]], list[tuple[str, int]]]:
     """Which IMU samples and GNSS fixes a run feeds the engine, in order: (windows, events), events being
@@ -114,7 +115,7 @@ def sensor_events(
 
 def run_replay(
     ds: Dataset,
-    outages: list[tuple[float, float]] = (),
+    outages: Sequence[tuple[float, float]] = (),
     outage_every: tuple[float, float, float] | None = None,
     navigator: Navigator | None = None,
     compensator=None,

@@ -61,29 +61,3 @@ def test_user_mistakes_give_one_line_errors(tmp_path):
         assert needle in res.output, (args, res.output)
         assert "Traceback" not in res.output and not isinstance(res.exception, (TypeError, ValueError, KeyError))
 
-
-def test_deploy_sets():
-    """deploy/edge.yaml: the edge set, the trainer not in it (it runs elsewhere), the ins learning; deploy/trainer.yaml:
-    the trainer alone, a client, its router's address a launch parameter (none in the file); every command is a
-    zennav console script."""
-    import sys
-    from pathlib import Path
-
-    import pytest
-
-    from zennav.launch import load_launch
-    from zennav.params import DEPLOY_DIR
-
-    bindir = Path(sys.executable).parent
-    for f in ("local.yaml", "edge.yaml", "demo.yaml"):
-        spec = load_launch(DEPLOY_DIR / f)
-        for s in spec.services:
-            assert s.command[0].startswith("zennav") and (bindir / s.command[0]).exists(), (f, s.command)
-    edge = {s.name: s for s in load_launch(DEPLOY_DIR / "edge.yaml").services}
-    assert set(edge) == {"router", "ins", "attitude", "predictor", "monitor", "ingest"}
-    assert "--learning" in edge["ins"].command
-    with pytest.raises(ValueError, match="no rendezvous"):
-        load_launch(DEPLOY_DIR / "trainer.yaml")
-    tr = load_launch(DEPLOY_DIR / "trainer.yaml", {"rendezvous": "tcp/10.0.0.2:7447"})
-    assert tr.mode == "client" and [s.command for s in tr.services] == [["zennav-trainer"]]
-    assert tr.rendezvous == "tcp/10.0.0.2:7447"

@@ -37,15 +37,29 @@ def test_mcap_round_trip_is_exact(tmp_path, encoding):
 
 
 def test_launch_files_in_deploy_parse():
+    """local.yaml and edge.yaml start with their router; the edge set has no trainer (it runs elsewhere) and its
+    ins learns; trainer.yaml is the trainer alone, a client, its router's address a launch parameter (none in the
+    file); every command is a zennav console script."""
+    import sys
+
     from zennav.launch import load_launch
 
-    for name in ("local.yaml", "edge.yaml"):
+    bindir = Path(sys.executable).parent
+    for name in ("local.yaml", "edge.yaml", "demo.yaml"):
         spec = load_launch(REPO / "deploy" / name)
         names = [s.name for s in spec.services]
         assert names[0] == "router" and "ins" in names and "ingest" in names
         assert all(s.restart in ("no", "on-failure", "always") for s in spec.services)
-    edge = load_launch(REPO / "deploy" / "edge.yaml")
-    assert next(s for s in edge.services if s.name == "trainer").optional
+        for s in spec.services:
+            assert s.command[0].startswith("zennav") and (bindir / s.command[0]).exists(), (name, s.command)
+    edge = {s.name: s for s in load_launch(REPO / "deploy" / "edge.yaml").services}
+    assert set(edge) == {"router", "ins", "attitude", "predictor", "monitor", "ingest"}
+    assert "--learning" in edge["ins"].command
+    with pytest.raises(ValueError, match="no rendezvous"):
+        load_launch(REPO / "deploy" / "trainer.yaml")
+    tr = load_launch(REPO / "deploy" / "trainer.yaml", {"rendezvous": "tcp/10.0.0.2:7447"})
+    assert tr.mode == "client" and [s.command for s in tr.services] == [["zennav-trainer"]]
+    assert tr.rendezvous == "tcp/10.0.0.2:7447"
 
 
 def test_zenoh_configs_in_deploy():

@@ -11,12 +11,9 @@ Wiring table
     subscribes <base>/nav/status, <base>/nav/*/status   to see every ins that follows the stream acknowledge
                                          its end before the session closes
 
-Selection and order are zennav.replay.sensor_events, the in-process replay's: IMU samples after the
-initial-state time up to config.end_t_ns; GNSS fixes after the initial time, outside the outage windows, not
-after the last IMU sample; a fix before the IMU sample at or after its time; every sensor message carries the
-shared sensor-channel sequence ``cseq`` (see zennav.messages.sensor). stream_start carries what describes the
-sensors and the run (zennav.params.SENSOR_FIELDS: IMU noise model, GNSS lever arm, start/end times; the
-initial state and its uncertainty; the outage windows), never filter settings (the ins's parameter file).
+The samples and their order are the in-process replay's (zennav.replay.sensor_events), the messages
+zennav.stream.stream_messages: every one stamped with the sensor-channel sequence ``cseq``; stream_start
+describes the sensors and the run, never filter settings (those are the ins's parameter file).
 
 Pacing: --speed 1 is real time, --speed 10 ten times faster, --speed 0 (or max) as fast as the consumers
 drain: the sensor keys are reliable with blocking congestion control and the consumers' queues are bounded,
