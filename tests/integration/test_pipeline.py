@@ -222,3 +222,25 @@ def test_second_ins_with_nav_prefix_beside_the_first(cluster, tmp_path):
     for key in (k.nav_solution(), plain.nav_solution()):
         assert sum(1 for _ in read_mcap(out, [re.escape(key) + "$"])) == n, key
     assert cluster.bus.rejected == {}
+
+
+def test_ins_started_mid_stream_joins_late_and_aligns(cluster):
+    """An ins started 25 s into a stream (as after a restart): it asks the ingest for the stream's start over the
+    bus, joins at the first IMU sample it gets (counted late_join), aligns in motion from the GNSS fixes and
+    follows the stream to its end; the ingest waits for its acknowledgement too."""
+    k = cluster.keys
+    late = M.Keys(k.vehicle, nav_prefix="late")
+    status = Collector(cluster.bus, k.nav_status(), channel="ring")
+    late_status = Collector(cluster.bus, late.nav_status(), channel="ring")
+    cluster.service("ins")
+    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=120", "--speed", "4", wait=False)
+    status.wait(lambda c: any(m["t_ns"] - c.msgs()[0]["t_ns"] > 25e9 for m in c.msgs()), 60, "25 s of the stream")
+    p = cluster.start("ins-late", "zennav.services.ins", "--name", "ins-late", "--nav-prefix", "late")
+    st = late_status.wait(lambda c: next((m for m in c.msgs() if m["stream"].get("done")), None), 90,
+                          "the late ins to finish the stream")
+    assert ing.wait(60) == 0, ing.text()
+    assert st["rejected"]["late_join"] == 1 and st["rejected"]["no_stream"] == 0, (st["rejected"], p.text())
+    assert st["alignment"]["state"] == "aligned" and st["alignment"]["method"] == "in_motion"
+    first = status.msgs()[-1]
+    assert 0 < st["imu_count"] < first["imu_count"] == 24_000 and st["stream"]["src"] == first["stream"]["src"]
+    assert "ins-late." in ing.text().split("end of stream acknowledged by")[1].splitlines()[0]
