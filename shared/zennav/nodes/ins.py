@@ -43,6 +43,7 @@ class InsNode:
         self.nav = None
         self.imu_count = self.gnss_count = self.sol_count = self.corrections = self.attitude_taken = 0
         self.wall_s, self._wall0, self._next_status_t, self._states = 0.0, 0.0, 0, (None, None)
+        self._late = False  # this stream was joined late (its samples before the join are not ours)
 
     def _start(self, start: dict, join: dict | None) -> None:
         from ..nav.navigator import Navigator
@@ -55,7 +56,7 @@ class InsNode:
         if self.learn is not None:
             config = config.with_(learning=True)
             self.learn.reset()
-        self.nav = Navigator(config, initial)
+        self.nav, self._late = Navigator(config, initial), join is not None
         self.imu_count = self.gnss_count = self.sol_count = 0
         self._next_status_t = int(initial.t_ns) + self.status_period_ns
         self._states = (self.nav.gnss_state, self.nav.align_state)
@@ -93,7 +94,7 @@ class InsNode:
         self.wall_s = time.perf_counter() - self._wall0
         c = msg["counts"]
         complete = (c.get("imu", 0), c.get("gnss", 0)) == (self.imu_count, self.gnss_count)
-        (self.log.info if complete or self.follower.counts["late_join"] else self.log.error)(
+        (self.log.info if complete or self._late else self.log.error)(
             "end of stream %s: consumed %d/%d IMU, %d/%d GNSS in %.2f s; merger %s", self.follower.dataset,
             self.imu_count, c.get("imu", 0), self.gnss_count, c.get("gnss", 0), self.wall_s,
             self.follower.status())
