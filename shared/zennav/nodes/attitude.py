@@ -32,7 +32,7 @@ ZERO3 = (0.0, 0.0, 0.0)
 
 def omega_in_n_of(llh, v_n) -> tuple:
     """omega_in_n = omega_ie_n + omega_en_n [rad/s, NED] at llh [rad, rad, m] moving at v_n [m/s]."""
-    from zennav.nav import earth
+    from ..nav import earth
 
     lat, h = float(llh[0]), float(llh[2])
     w = earth.omega_ie_n(lat) + earth.omega_en_n(lat, h, np.asarray(v_n, dtype=float))
@@ -73,7 +73,8 @@ class AttitudeNode:
         self.filter = AdaptiveComplementaryFilter(self.config)
         self._levelled, self._held, self._held_s = False, [], 0.0
         self._rate = None
-        self.log.info("stream %s from %s: filter reset", start["dataset"], start["src"])
+        self.log.info("stream %s from %s%s: filter reset", start["dataset"], start["src"],
+                      " (joined late: levelling from here)" if join else "")
         self.on_state(f"filtering stream {start['dataset']} from {start['src']}")
 
     def _sample(self, key: str, msg: dict) -> None:
