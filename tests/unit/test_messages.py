@@ -279,3 +279,15 @@ def test_solution_fast_path_matches_core_solution():
                     assert np.allclose(a[f], b[f], rtol=0, atol=1e-15), f
                 else:
                     assert a[f] == b[f], f
+
+
+def test_euler_list_is_the_rotation_helper():
+    """messages.euler_list (the hot path's inlined ZYX conversion, used by the ins's solution and the attitude
+    service) equals zennav.nav.rotation.quat_to_euler, on random and gimbal-near quaternions."""
+    from zennav.nav.rotation import quat_to_euler, rotvec_to_quat
+
+    rng = np.random.default_rng(7)
+    qs = [q / np.linalg.norm(q) for q in rng.normal(size=(500, 4))]
+    qs += [rotvec_to_quat([0.0, np.pi / 2 - e, 0.3]) for e in (1e-3, 1e-7, 0.0)]
+    for q in qs:
+        assert np.allclose(M.euler_list(*q.tolist()), quat_to_euler(q), rtol=0, atol=2e-15), q
