@@ -415,11 +415,11 @@ def test_ins_learning_loop_in_lockstep_equals_the_in_process_loop(cluster):
     assert all(np.array_equal(last.arrays[a], live.arrays[a]) for a in live.arrays)
     assert all(np.array_equal(last.norm[a], live.norm[a]) for a in live.norm) and tuple(last.metrics["sigma"]) == live.std
     model = st["model"]
-    assert model["lockstep"] and model.get("lockstep_timeouts", 0) == 0 and model["queries"] == loop.counts["queries"]
+    assert model["lockstep"] and model.get("lockstep_timeouts", 0) == 0 and model["queries"] == loop.queries
     pc = wait_counter(svc, "predictor", lambda c: c.get("queries_answered", 0) + c.get("queries_off_domain", 0)
                       == model["queries"], 20, "every query at the predictor")["counters"]
     assert pc.get("queries_late_model", 0) == 0 and pc.get("queries_no_model", 0) == 0
-    lc = loop.status()
+    lc = loop.status()["predictor"]
     assert (pc.get("queries_answered", 0), pc.get("queries_off_domain", 0)) == \
         (lc.get("queries_answered", 0), lc.get("queries_off_domain", 0))
     assert model["fused"] == sum(r.fused for r in learned) and model.get("unanswered", 0) == 0

@@ -28,10 +28,12 @@ def test_anfis_loop_offers_corrections_during_outage_only(drive):
     assert all(r.fused or r.reason == "learned_position_gate" for r in learned)
     # one scheduled fit (at min_samples) and one at the outage's first query, through every sample before it
     st = comp.status()
-    assert (st["sets_published"], st["sets_swapped"], st["live_version_position"]) == (2, 2, 2)
+    assert (st["trainer"]["sets_position"], st["predictor"]["sets_accepted"], st["predictor"]["live_version_position"]) \
+        == (2, 2, 2)
     seen = comp.core.live["position"].samples_seen  # the outage's start; the samples after it were not needed
     assert comp.learner.through == seen > comp.settings.min_samples and comp.learner.received > seen
-    assert st["queries"] == st["queries_answered"] + st.get("queries_off_domain", 0) >= len(learned)
+    pc = st["predictor"]
+    assert st["link"]["queries"] == pc["queries_answered"] + pc.get("queries_off_domain", 0) >= len(learned)
     # Deterministic: the same run gives the same solution.
     again = run_replay(drive, outages=[(180.0, 30.0)], compensator=make_compensator("anfis", "position"))
     assert np.array_equal(again.llh, res.llh)
@@ -46,7 +48,9 @@ def test_elman_predicts_only_under_its_error_threshold(drive):
     assert net is not None and net.train_rmse > comp.settings.threshold
     assert not [r for r in res.reports if r.source.startswith("learned")]
     st = comp.status()
-    assert st["learner_elman_not_ready"] == st["learner_fit_points"] >= 2 and st["queries_no_model"] == st["queries"]
+    tc = st["trainer"]
+    assert tc["elman_not_ready_position"] == tc["fit_points_position"] >= 2
+    assert st["predictor"]["queries_no_model"] == st["link"]["queries"] > 0
 
 
 def test_loop_refuses_queries_outside_the_training_range():
@@ -61,7 +65,7 @@ def test_loop_refuses_queries_outside_the_training_range():
     inside = (norm["x_min"] + norm["x_max"]) / 2
     assert comp.predict(LearnQuery(0, "position", inside, 1.0)) is not None
     assert comp.predict(LearnQuery(0, "position", norm["x_max"] + norm["x_std"], 1.0)) is None
-    assert comp.status()["queries_off_domain"] == 1
+    assert comp.status()["predictor"]["queries_off_domain"] == 1
 
 
 def test_body_velocity_correction_observes_the_velocity_error(drive):

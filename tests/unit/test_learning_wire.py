@@ -305,7 +305,7 @@ def test_trainer_and_in_process_loop_make_the_same_sets_and_answers(compensation
     points = [120, 200, 270, 330, 400]  # min_samples, query, min + retrain, query, query
     assert [m["metrics"]["samples_seen"] for m in published] == points[compensation == "elman":]  # (not ready at 120)
     assert loop.learner.counts["fit_points"] == node.learners["body_velocity"].counts["fit_points"] == 5
-    assert loop.counts["sets_published"] == len(published) and loop.version == published[-1]["version"]
+    assert loop.status()["trainer"]["sets_body_velocity"] == len(published) and loop.version == published[-1]["version"]
     live_bus = pred.live["body_velocity"]
     for k in ("arrays", "norm"):
         for name, v in getattr(live_loop, k).items():

@@ -145,8 +145,8 @@ class TrainerNode:
     def counters(self) -> dict:
         c = dict(self.counts)
         for t, lr in self.learners.items():
-            c.update({f"{k}_{t}": v for k, v in dict(lr.counts).items()})
-            c.update({f"version_{t}": self.version[t], f"through_{t}": lr.through, f"received_{t}": lr.received})
+            c.update(lr.counters())
+            c[f"version_{t}"] = self.version[t]
         return c
 
     def detail(self) -> str:

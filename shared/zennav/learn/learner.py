@@ -163,6 +163,15 @@ class Learner:
         with self.lock:
             return max(0, min(self._requests, default=0) - self.received)
 
+    def counters(self) -> dict[str, int]:
+        """<count>_<target>: received, through (the last fit point), sets, fit_points, elman_not_ready, fit_errors,
+        requests_early, requests_behind (the trainer's status counters)."""
+        t = self.target
+        with self.lock:
+            c = {f"received_{t}": self.received, f"through_{t}": self.through}
+            c.update({f"{k}_{t}": v for k, v in self.counts.items()})
+        return c
+
     # ------------------------------------------------------------------ fit
     def _consume(self, n: int) -> None:
         with self.lock:

@@ -9,8 +9,6 @@ Scheduled fits (every retrain_samples samples) happen as the samples arrive, as 
 """
 from __future__ import annotations
 
-from collections import Counter
-
 import numpy as np
 
 from .learner import Learner
@@ -28,8 +26,8 @@ class InProcessLoop:
         self.target, self.settings = target, settings
         self.learner = Learner(target, settings)
         self.core = PredictorCore(settings.max_domain_excess)
-        self.version = 0
-        self.counts: Counter[str] = Counter()  # queries, fused answers are the engine's
+        self.version = 0  # of the last set made
+        self.queries = 0  # queries received for the target
 
     def _fit_due(self) -> None:
         while (n := self.learner.due()) is not None:
@@ -37,9 +35,7 @@ class InProcessLoop:
             if msg is None:
                 continue
             self.version += 1
-            self.counts["sets_published"] += 1
-            if self.core.offer(msg["name"], msg)[0] is not None:
-                self.counts["sets_swapped"] += 1
+            self.core.offer(msg["name"], msg)
 
     def add(self, samples: list[LearnSample]) -> None:
         """The engine's new training samples (other targets are ignored)."""
@@ -53,17 +49,19 @@ class InProcessLoop:
         far; None when refused (counted by reason in core.queries)."""
         if query.target != self.target:
             return None
-        self.counts["queries"] += 1
+        self.queries += 1
         self.learner.request(self.learner.received)
         self._fit_due()
         out = self.core.answer(query.target, query.features, self.learner.received)
         return None if isinstance(out, str) else out[:2]
 
-    def status(self) -> dict[str, int]:
-        """The services' counters: the trainer's (sets, fit points, not ready, errors), the predictor's (sets
-        accepted / rejected, queries answered / refused per reason / late, live version) and the queries sent."""
-        return {**dict(self.counts), **{f"learner_{k}": v for k, v in self.learner.counts.items()},
-                **self.core.counters()}
+    def status(self) -> dict[str, dict[str, int]]:
+        """The counters the services put in their status messages: "trainer" (zennav.services.trainer: per target
+        received, through, sets, fit_points, version, ...), "predictor" (PredictorCore: sets accepted / rejected,
+        queries answered, refused per reason, late_model, live version) and "link" (queries sent; whether an
+        answer was fused is the engine's: its learned_<target>_fused / rejection counters)."""
+        return {"trainer": {**self.learner.counters(), f"version_{self.target}": self.version},
+                "predictor": self.core.counters(), "link": {"queries": self.queries}}
 
 
 def make_compensator(compensation: str, target: str = "body_velocity", seed: int = 0) -> InProcessLoop | None:
