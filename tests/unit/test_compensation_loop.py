@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from zennav.learn.learner import ElmanOnline
 from zennav.learn.loop import InProcessLoop, make_compensator
 from zennav.learn.settings import LearnSettings
@@ -28,11 +27,10 @@ def test_anfis_loop_offers_corrections_during_outage_only(drive):
     assert all(r.fused or r.reason == "learned_position_gate" for r in learned)
     # one scheduled fit (at min_samples) and one at the outage's first query, through every sample before it
     st = comp.status()
-    assert (st["trainer"]["sets_position"], st["predictor"]["sets_accepted"], st["predictor"]["live_version_position"]) \
-        == (2, 2, 2)
+    tc, pc = st["trainer"], st["predictor"]
+    assert (tc["sets_position"], pc["sets_accepted"], pc["live_version_position"]) == (2, 2, 2)
     seen = comp.core.live["position"].samples_seen  # the outage's start; the samples after it were not needed
     assert comp.learner.through == seen > comp.settings.min_samples and comp.learner.received > seen
-    pc = st["predictor"]
     assert st["link"]["queries"] == pc["queries_answered"] + pc.get("queries_off_domain", 0) >= len(learned)
     # Deterministic: the same run gives the same solution.
     again = run_replay(drive, outages=[(180.0, 30.0)], compensator=make_compensator("anfis", "position"))
@@ -154,7 +152,7 @@ def test_body_velocity_window_slides_by_gnss_intervals_and_restarts_after_an_out
     assert body[-1].features[0] == pytest.approx(0.001 * np.mean(np.arange(100, 200)))  # the last second
     assert body[-1].value == pytest.approx([3.0, 4.0, 0.0])  # level, heading north: v_b = v_n
     tap.samples.clear()
-    for k in range(150):  # 1.5 s without a fix: a rate query splits the window
+    for _ in range(150):  # 1.5 s without a fix: a rate query splits the window
         tap.on_step((0.0,) * 3, (0.0, 0.0, -9.8 * dt), (0.0,) * 3, (0.0, 0.0, -9.8 * dt), dt)
         t += 10_000_000
         tap.maybe_query(t, s, 0.25)
@@ -168,7 +166,7 @@ def test_elman_sigma_is_that_of_the_network_running_free():
     from zennav.learn import anfis_numpy
     from zennav.learn.elman import Elman
     from zennav.learn.sigma import answer_sigma
-    from zennav.nav.learning import BODY_FEATURES, LearnSample
+    from zennav.nav.learning import BODY_FEATURES
 
     rng = np.random.default_rng(11)
     n = 1200
@@ -194,7 +192,6 @@ def test_elman_sigma_is_that_of_the_network_running_free():
 def test_elman_starts_after_min_samples_and_its_normalisation_follows_the_window():
     """Learning starts with the normalisation of the first min_samples samples; every min_samples samples it is
     refit from the window's samples (here: targets whose level moves, so the first ones would misscale later)."""
-    from zennav.nav.learning import LearnSample
 
     rng = np.random.default_rng(3)
     n = 700

@@ -6,7 +6,6 @@ import logging
 
 import numpy as np
 import pytest
-
 from zennav import messages as M
 from zennav.learn import anfis_numpy, paramset
 from zennav.nav.learning import BODY_FEATURES, DRIFT_FEATURES, LearnQuery, LearnSample
@@ -155,7 +154,8 @@ def test_ins_learning_link_matches_answers_to_pending_queries():
 
     link = LearningLink(publish, LOG, ("drift",), max_age_s=1.0)
     nav = _FakeNav()
-    nav.samples = [LearnSample(1, "drift", np.zeros(N_IN), np.zeros(2)), LearnSample(1, "position", np.zeros(11), np.zeros(2)),
+    nav.samples = [LearnSample(1, "drift", np.zeros(N_IN), np.zeros(2)), LearnSample(1, "position", np.zeros(11),
+                                                                                      np.zeros(2)),
                    LearnSample(2, "drift", np.zeros(N_IN), np.zeros(2))]
     nav.t_ns = 10**9
     nav.queries = [LearnQuery(10**9, "drift", np.zeros(N_IN), 1.0), LearnQuery(10**9, "position", np.zeros(11), 0.5)]
@@ -370,7 +370,8 @@ def test_elman_trainer_publishes_once_ready_and_the_predictor_runs_the_same_netw
     for i in range(50, 700):
         node.on_sample(M.make("learn_sample", i, features=list(xs[i]), target=list(ys[i]), variant="drift"))
     while node.due():
-        msg = node.train("drift") or msg
+        node.train("drift")
+    msg = published[-1][1]
     assert published[-1][0] == "elman-drift" and msg["kind"] == "elman"
     assert msg["metrics"]["samples_seen"] == msg["metrics"]["samples"] == 700
     comp = node.learners["drift"].elman

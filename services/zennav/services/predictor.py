@@ -40,7 +40,6 @@ import time
 from collections import deque
 
 import numpy as np
-
 from zennav import messages as M
 from zennav.learn.predictor_core import PredictorCore
 from zennav.learn.settings import LearnSettings

@@ -164,21 +164,24 @@ def build_parser() -> argparse.ArgumentParser:
                    "elman: learns online from every sample (seed 002)")
     p.add_argument("--optimizer", default=d.optimizer, choices=OPTIMIZERS,
                    help="anfis premises: cg (hybrid LSE + Fletcher-Reeves CG, seed 000) or pso (seed 003)")
-    p.add_argument("--targets", default="body_velocity", help=f"comma-separated target variants to learn ({', '.join(TARGETS)})")
+    p.add_argument("--targets", default="body_velocity",
+                   help=f"comma-separated target variants to learn ({', '.join(TARGETS)})")
     p.add_argument("--prefix", default=None, help="model name prefix (default: --model): sets are published as "
                    "<prefix>-<target>")
     p.add_argument("--window", type=int, default=None, help="anfis: newest samples a fit uses; elman: its sliding "
                    "window (default: the model's, zennav.learn.settings.WINDOW)")
     p.add_argument("--min-samples", type=int, default=None, help="no set below this many samples (default: the "
                    "model's, zennav.learn.settings.MIN_SAMPLES)")
-    p.add_argument("--retrain-samples", type=int, default=d.retrain_samples, help="a scheduled fit every this many samples")
+    p.add_argument("--retrain-samples", type=int, default=d.retrain_samples,
+                   help="a scheduled fit every this many samples")
     p.add_argument("--n-rules", type=int, default=d.n_rules, help="ANFIS rules (k-means rule base)")
     p.add_argument("--max-epochs", type=int, default=d.max_epochs, help="ANFIS epochs per fit (LSE + FR-CG, or swarm "
                    "iterations)")
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--device", default=None, help="torch device (default: cuda when torch sees one, else cpu)")
     p.add_argument("--torch-threads", type=int, default=d.torch_threads,
-                   help="torch CPU threads during a fit (1: the in-process loop's sets, bit for bit; 0: torch's default)")
+                   help="torch CPU threads during a fit (1: the in-process loop's sets, bit for bit; 0: torch's "
+                        "default)")
     p.add_argument("--first-version", type=int, default=1, help="version of the first set if none is found on the bus")
     p.add_argument("--link-poll", type=float, default=0.5, help="period [s] of the link (router/peer) check")
     p.add_argument("--close-timeout", type=float, default=3.0, help="longest wait [s] for the session to close")

@@ -28,7 +28,7 @@ Arthur and Vassilvitskii 2007, in place of subtractive clustering).
 from __future__ import annotations
 
 import itertools
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 

@@ -18,10 +18,9 @@ normalisation and the context gain: `step` is its forward pass, the one `Elman.p
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
-
 
 ARRAY_NAMES = ("w1", "w2", "b1", "w3", "b3", "context")
 

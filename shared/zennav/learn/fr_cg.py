@@ -24,8 +24,9 @@ imports neither; `fun(x)` returns (f, g) with g of the same type and shape as x.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 RESTART_REASONS = ("periodic", "powell", "not_descent", "armijo_only", "line_search_failure")
 

@@ -28,12 +28,12 @@ from collections import Counter, deque
 
 import numpy as np
 
+from ..nav.learning import ANSWER_PERIOD_S, FEATURES, OUTPUTS, TARGETS
 from . import anfis_numpy, paramset
 from .elman import Elman
 from .elman import step as elman_step
 from .settings import LearnSettings
 from .sigma import answer_lag, answer_sigma
-from ..nav.learning import ANSWER_PERIOD_S, FEATURES, OUTPUTS, TARGETS
 
 
 class ElmanOnline:
@@ -157,11 +157,6 @@ class Learner:
         with self.lock:
             p = min([self._next_scheduled(), *self._requests])
             return p if p <= self.received else None
-
-    def waiting_for(self) -> int:
-        """Samples the next requested fit point still lacks (0: none requested or all in)."""
-        with self.lock:
-            return max(0, min(self._requests, default=0) - self.received)
 
     def counters(self) -> dict[str, int]:
         """<count>_<target>: received, through (the last fit point), sets, fit_points, elman_not_ready, fit_errors,

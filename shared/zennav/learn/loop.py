@@ -11,18 +11,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..nav.learning import TARGETS, LearnQuery, LearnSample
 from .learner import Learner
 from .predictor_core import PredictorCore
 from .settings import COMPENSATIONS, LearnSettings, compensation_settings
-from ..nav.learning import TARGETS, LearnQuery, LearnSample
 
 CHOICES = ("none", *COMPENSATIONS)  # `zennav replay --compensation`
+DEFAULTS = LearnSettings()
 
 
 class InProcessLoop:
     """Learner + PredictorCore of one target variant (module docstring); counts as the services do."""
 
-    def __init__(self, target: str = "body_velocity", settings: LearnSettings = LearnSettings()):
+    def __init__(self, target: str = "body_velocity", settings: LearnSettings = DEFAULTS):
         self.target, self.settings = target, settings
         self.learner = Learner(target, settings)
         self.core = PredictorCore(settings.max_domain_excess)

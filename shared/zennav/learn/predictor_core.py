@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import anfis_numpy, elman, paramset
 from ..nav.learning import FEATURES, OUTPUTS
+from . import anfis_numpy, elman, paramset
 
 REFUSALS = ("no_model", "bad_features", "off_domain", "nonfinite")
 

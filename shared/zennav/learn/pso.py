@@ -9,8 +9,8 @@ component that hits a bound is zeroed). Seed 003 uses it to tune the ANFIS premi
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 

@@ -11,7 +11,7 @@ first query after new samples arrived (through the query's sample count).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 MODELS = ("anfis", "elman")
 OPTIMIZERS = ("cg", "pso")  # anfis premises: hybrid LSE + FR-CG (seed 000) or PSO (seed 003)
@@ -71,7 +71,7 @@ class LearnSettings:
         """anfis-cg, anfis-pso or elman."""
         return f"anfis-{self.optimizer}" if self.model == "anfis" else self.model
 
-    def with_(self, **kw) -> "LearnSettings":
+    def with_(self, **kw) -> LearnSettings:
         """A copy with fields changed; window / min_samples follow a changed model unless given."""
         if "model" in kw:
             kw.setdefault("window", None)
@@ -85,6 +85,3 @@ def compensation_settings(compensation: str, seed: int = 0) -> LearnSettings:
         raise ValueError(f"unknown compensation {compensation!r}; choose from {tuple(COMPENSATIONS)}")
     model, optimizer = COMPENSATIONS[compensation]
     return LearnSettings(model=model, optimizer=optimizer, seed=seed)
-
-
-FIELDS = tuple(f.name for f in fields(LearnSettings))
