@@ -151,10 +151,12 @@ class EndAcks:
     drops what is still queued."""
 
     def __init__(self, bus):
+        self.bus = bus
         self.src = bus.src
-        self.following: set[str] = set()  # status publishers that reported on this stream ...
+        self.following: set[str] = set()  # status publishers (src) that reported on this stream ...
         self.acks: dict[str, int] = {}  # ... and the last cseq each acknowledged
         self._cv = threading.Condition()
+        bus.watch_alive()
         for key in (bus.keys.nav_status(), f"{bus.keys.base}/nav/*/status"):
             bus.subscribe(key, self._on_status, channel="ring", name="acks")
 
@@ -167,21 +169,29 @@ class EndAcks:
                     self.acks[msg["src"]] = int(st.get("last_cseq", -1))
                 self._cv.notify_all()
 
+    def pending(self, last_cseq: int | None) -> set[str]:
+        """The following ins (src) that have not acknowledged the end at last_cseq (None: any) yet."""
+        with self._cv:
+            return {s for s in self.following if s not in self.acks or last_cseq not in (None, self.acks[s])}
+
     def wait(self, last_cseq: int | None, timeout: float, stop: Callable[[], bool] = lambda: False) -> bool:
         """Wait until every ins that reported on the stream (at least one) acknowledged its end (at last_cseq;
-        None: any), or stop(), or timeout [s]; True when acknowledged."""
-        def acked() -> bool:
-            done = {s for s, c in self.acks.items() if last_cseq is None or c == last_cseq}
-            return bool(done) and self.following <= done
-
+        None: any), or stop(). An ins still alive (its liveliness token; a slow one, e.g. learning in lockstep)
+        is waited for as long as it lives; timeout [s] runs while no pending ins is alive (none reported yet, or
+        the pending ones died). True when acknowledged."""
         deadline = time.monotonic() + timeout
-        with self._cv:
-            while not acked() and not stop():
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cv.wait(min(left, 0.2))
-            return acked()
+        while not stop():
+            pending = self.pending(last_cseq)
+            if self.following and not pending:
+                return True
+            alive = self.bus.alive()
+            if any(s.rsplit(".", 2)[0] in alive for s in pending):  # src = <service>.<zid>.<id>
+                deadline = time.monotonic() + timeout
+            elif time.monotonic() > deadline:
+                return False
+            with self._cv:
+                self._cv.wait(0.2)
+        return False
 
 
 def wall_ns() -> int:

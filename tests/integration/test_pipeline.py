@@ -244,3 +244,22 @@ def test_ins_started_mid_stream_joins_late_and_aligns(cluster):
     first = status.msgs()[-1]
     assert 0 < st["imu_count"] < first["imu_count"] == 24_000 and st["stream"]["src"] == first["stream"]["src"]
     assert "ins-late." in ing.text().split("end of stream acknowledged by")[1].splitlines()[0]
+
+
+def test_ingest_does_not_wait_for_a_dead_ins(cluster):
+    """The ingest waits for the end's acknowledgement of every ins that followed the stream as long as it lives;
+    one that died mid-stream is given up --ack-timeout seconds later (the ingest still exits cleanly)."""
+    import signal
+    import time
+
+    k = cluster.keys
+    status = Collector(cluster.bus, k.nav_status(), channel="ring")
+    ins = cluster.service("ins")
+    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=120", "--speed", "8", "--ack-timeout", "3",
+                          wait=False)
+    status.wait(lambda c: len(c.msgs()) > 3, 60, "the ins under way")
+    ins.p.send_signal(signal.SIGKILL)
+    t0 = time.monotonic()
+    assert ing.wait(90) == 0, ing.text()
+    assert "end of stream NOT acknowledged by ['ins." in ing.text(), ing.text()[-2000:]
+    assert time.monotonic() - t0 < 60

@@ -83,7 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wait-timeout", type=float, default=60.0)
     p.add_argument("--exit-on-end", action=argparse.BooleanOptionalAction, default=True,
                    help="exit after the stream (once the awaited consumers acknowledge its end), else stay up")
-    p.add_argument("--ack-timeout", type=float, default=60.0)
+    p.add_argument("--ack-timeout", type=float, default=60.0,
+                   help="[s] to wait for the end's acknowledgement while no ins that follows the stream is alive "
+                        "(a live one, however slow, is waited for)")
     p.add_argument("--linger", type=float, default=1.0,
                    help="seconds to stay connected after the end when no ins acknowledgement is awaited")
     p.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before streaming")
@@ -139,7 +141,8 @@ def main(argv=None) -> int:
         run.set_state("done", f"streamed {ds.name}: {stats['imu']} IMU, {stats['gnss']} GNSS")
         if waits and "ins" in waits:  # closing the session drops what is still queued: wait for every ins
             ok = acks.wait(last_cseq, args.ack_timeout, lambda: run.stopping)
-            log.info("end of stream %s by %s", "acknowledged" if ok else "NOT acknowledged", sorted(acks.following))
+            log.info("end of stream %s by %s", "acknowledged" if ok else "NOT acknowledged",
+                     sorted(acks.following) if ok else sorted(acks.pending(last_cseq)) or "any ins")
         elif args.exit_on_end:
             run.wait(args.linger)  # no acknowledgement to wait for: give the queues time to drain
         if not args.exit_on_end:
