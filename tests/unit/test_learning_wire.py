@@ -384,3 +384,27 @@ def test_elman_trainer_publishes_once_ready_and_the_predictor_runs_the_same_netw
         want, ctx = elman.step(comp.net.arrays(), comp.norm(), x, ctx, gain)
         assert a["model"] == "elman-drift" and np.allclose(a["value"], want, rtol=0, atol=1e-12)
         assert a["std"] == pytest.approx(list(comp.std()))
+
+
+def test_lockstep_answer_waits_for_the_set_through_n_unless_the_trainer_says_none_will_come():
+    import threading
+    import time
+
+    from zennav.learn.predictor_core import PredictorCore
+
+    core = PredictorCore()
+    x = np.zeros(N_IN)
+    assert core.answer("drift", x, 10, wait_s=0.05) == "no_model" and core.queries["late_model"] == 1
+    core.trainer_progress("drift", min_samples=100, set_through=0, through=0)
+    t0 = time.perf_counter()
+    assert core.answer("drift", x, 10, wait_s=5.0) == "no_model"  # below min_samples: no set will come
+    v1 = _set(1, seed=1, metrics={"target": "drift", "sigma": [0.3, 0.4], "samples_seen": 120})
+    core.offer("anfis-drift", v1)
+    assert core.answer("drift", x, 120, wait_s=5.0)[2].version == 1  # the set through exactly 120
+    v2 = _set(2, seed=2, metrics={"target": "drift", "sigma": [0.3, 0.4], "samples_seen": 200})
+    threading.Timer(0.2, core.offer, ("anfis-drift", v2)).start()
+    assert core.answer("drift", x, 200, wait_s=5.0)[2].version == 2  # waited for it
+    core.trainer_progress("drift", 100, set_through=200, through=260)  # a fit point at 260 without a set
+    assert core.answer("drift", x, 260, wait_s=5.0)[2].version == 2
+    assert time.perf_counter() - t0 < 2.0 and core.queries["late_model"] == 1
+    assert core.answer("drift", x, 300, wait_s=0.05)[2].version == 2 and core.queries["late_model"] == 2

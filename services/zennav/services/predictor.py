@@ -24,7 +24,9 @@ one (e.g. the late-joiner reply and the publication both arriving) is counted as
 
 Lockstep (--lockstep; a replay of a recording, e.g. the demo; not for live vehicles): a query is answered only
 with a set trained through at least its n_samples (metrics.samples_seen); the query thread waits for it up to
---lockstep-timeout seconds, then counts late_model and answers with the live set (or refuses: no_model). With the
+--lockstep-timeout seconds, then counts late_model and answers with the live set (or refuses: no_model). It stops
+waiting early when the trainer's status (<base>/svc/trainer/status, subscribed with --lockstep) says that no set
+through n will come (n below its min_samples, or a fit point at n without a set). With the
 ins's --lockstep (it waits for each answer before its next sensor sample) and the trainer's --torch-threads 1 on
 the CPU, the answers are those of the in-process loop, bit for bit.
 
@@ -44,6 +46,7 @@ from zennav import messages as M
 from zennav.learn.predictor_core import PredictorCore
 from zennav.learn.settings import LearnSettings
 from zennav.messages.learn import refusal_msg
+from zennav.nav.learning import FEATURES
 from zennav.service import ServiceRunner, add_bus_args
 
 
@@ -122,6 +125,14 @@ class PredictorNode:
         self.publish(ans)
         return ans
 
+    def on_trainer_status(self, msg: dict) -> None:
+        """The trainer's status: its progress per target (lockstep, zennav.learn.predictor_core)."""
+        c = msg["counters"]
+        for t in FEATURES:
+            if f"through_{t}" in c:
+                self.core.trainer_progress(t, c.get(f"min_samples_{t}", 0), c.get(f"set_through_{t}", 0),
+                                           c[f"through_{t}"])
+
     def on_nav_status(self, msg: dict) -> None:
         self.gnss_state = msg["gnss_state"]
 
@@ -180,6 +191,9 @@ def main(argv=None) -> int:
                   capacity=args.queue, name="query")
     bus.subscribe(k.nav_status(), lambda key, msg, recv_ns: node.on_nav_status(msg), channel="ring", capacity=4,
                   name="nav_status")
+    if args.lockstep:
+        bus.subscribe(k.svc_status("trainer"), lambda key, msg, recv_ns: node.on_trainer_status(msg), channel="ring",
+                      capacity=16, name="trainer_status")
     if not args.no_fetch:  # late joiner: the latest set of each model (duplicates of a publication are ignored)
         for key, msg in bus.get_latest(k.learn_model(), timeout=2.0):
             node.on_model(key, msg, time.time_ns(), latency=False)

@@ -255,6 +255,7 @@ def main(argv=None) -> int:
             for t in node.wait_due():
                 node.train(t)
                 run.detail = node.detail()
+                run.heartbeat()  # the progress now: a lockstep predictor waits on it (zennav.services.predictor)
 
     link["up"] = connected()
     threads = [threading.Thread(target=f, name=f"zennav-{f.__name__}", daemon=True) for f in (watch_link, train_loop)]

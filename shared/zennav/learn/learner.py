@@ -120,6 +120,7 @@ class Learner:
         self.lock = threading.Lock()
         self.received = 0  # samples added (the count n of the newest)
         self.through = 0  # samples consumed: the last fit point
+        self.done = 0  # the last fit point whose fit is over (its set, if any, made)
         self._pending: deque = deque()  # (t_ns, x, y) added, not yet consumed
         self._requests: set[int] = set()
         self._rows: deque = deque(maxlen=settings.window)  # anfis: the newest consumed samples
@@ -159,11 +160,14 @@ class Learner:
             return p if p <= self.received else None
 
     def counters(self) -> dict[str, int]:
-        """<count>_<target>: received, through (the last fit point), sets, fit_points, elman_not_ready, fit_errors,
-        requests_early, requests_behind (the trainer's status counters)."""
+        """<count>_<target>: received, through (the last fit point done), set_through (samples_seen of the last set),
+        min_samples, sets, fit_points, elman_not_ready, fit_errors, requests_early, requests_behind (the trainer's
+        status counters; a lockstep predictor stops waiting for a set through n when min_samples > n or
+        set_through < n <= through: none will come)."""
         t = self.target
         with self.lock:
-            c = {f"received_{t}": self.received, f"through_{t}": self.through}
+            c = {f"received_{t}": self.received, f"through_{t}": self.done,
+                 f"set_through_{t}": int(self.last.get("samples_seen", 0)), f"min_samples_{t}": self.s.min_samples}
             c.update({f"{k}_{t}": v for k, v in self.counts.items()})
         return c
 
@@ -185,7 +189,10 @@ class Learner:
         None (counted: elman_not_ready, fit_errors)."""
         self._consume(n)
         self.counts["fit_points"] += 1
-        return self._elman_set(n, version) if self.elman is not None else self._anfis_set(n, version)
+        try:
+            return self._elman_set(n, version) if self.elman is not None else self._anfis_set(n, version)
+        finally:
+            self.done = n
 
     def _build(self, n: int, version: int, arrays, norm, metrics: dict, kind: str) -> dict:
         metrics = {**metrics, "target": self.target, "samples_seen": n, "model": self.s.model}

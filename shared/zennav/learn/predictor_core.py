@@ -11,7 +11,9 @@ per reason (model_<paramset reason>, model_schema, model_invalid_value) and the 
 it with a reason (REFUSALS): no_model, bad_features, off_domain (features further than max_domain_excess training
 standard deviations outside the training range: a first-order Takagi-Sugeno model extrapolates linearly and without
 bound there), nonfinite. With wait_s > 0 (lockstep) it first waits up to wait_s seconds for a set trained through
-at least the query's n_samples (metrics.samples_seen); past that it counts late_model and answers with the live set.
+at least the query's n_samples (metrics.samples_seen), unless the trainer's progress (``trainer_progress``) says
+that none will come (too few samples, the Elman not ready, a failed fit: then it answers with the live set, as the
+in-process loop does); past wait_s it counts late_model and answers with the live set.
 
 Atomic swap: the live sets are immutable objects (read-only arrays) in a dict keyed by target; a swap is one
 reference store, and an answer reads the reference once, so every answer is the forward pass of exactly the one
@@ -72,6 +74,7 @@ class PredictorCore:
         self.rejected: Counter[str] = Counter()  # per reason
         self.queries: Counter[str] = Counter()  # answered, late_model, and the REFUSALS
         self.last_rejection = ""
+        self._trainer: dict[str, tuple[int, int, int]] = {}  # target -> (min_samples, set_through, through)
 
     # ------------------------------------------------------------------ parameter sets
     def count_rejection(self, name: str, reason: str) -> None:
@@ -123,14 +126,26 @@ class PredictorCore:
         self.count_rejection(name, reason)
         return None, reason
 
+    def trainer_progress(self, target: str, min_samples: int, set_through: int, through: int) -> None:
+        """The trainer's progress on a target (its status counters, Learner.counters): a lockstep answer stops
+        waiting for a set through n that will not come (n < min_samples, or set_through < n <= through)."""
+        with self._cv:
+            self._trainer[target] = (int(min_samples), int(set_through), int(through))
+            self._cv.notify_all()
+
+    def _no_set_coming(self, target: str, n: int) -> bool:
+        m, s, t = self._trainer.get(target, (0, 0, 0))
+        return n < m or s < n <= t
+
     # ------------------------------------------------------------------ queries
     def answer(self, target: str, features, n_samples: int | None = None,
                wait_s: float = 0.0) -> tuple[np.ndarray, tuple, LiveModel] | str:
         """(value, 1-sigma, model) for a query, or the reason it is refused (counted; module docstring)."""
         if wait_s > 0.0 and n_samples is not None:
             with self._cv:
-                ok = self._cv.wait_for(lambda: (m := self.live.get(target)) is not None
-                                       and m.samples_seen >= n_samples, wait_s)
+                ok = self._cv.wait_for(lambda: ((m := self.live.get(target)) is not None
+                                                and m.samples_seen >= n_samples)
+                                       or self._no_set_coming(target, n_samples), wait_s)
             if not ok:
                 self.queries["late_model"] += 1
         model = self.live.get(target)  # read once: the whole answer comes from this one version
