@@ -1,8 +1,9 @@
 """Outage benchmark of learned INS-error compensation on real data (issue 6).
 
-Per window length and compensation (none = pure INS, anfis, elman), prints the RMS and the maximum over windows
-of the per-window maximum horizontal drift, scored against the withheld reference positions, and the change of
-that RMS against pure INS.
+Per window length and compensation (none = pure INS, anfis = ANFIS with FR-CG premises, anfis-pso, elman: the
+in-process learning loop of zennav.learn.loop with the default LearnSettings, the trainer's and predictor's), prints
+the RMS and the maximum over windows of the per-window maximum horizontal drift, scored against the withheld
+reference positions, and the change of that RMS against pure INS.
 
 rtklibexplorer (one 500 s drive, --dataset rtklibexplorer): GNSS is withheld in windows of 10, 30 and 60 s, the
 first after an initial training period (--train-s) and then one every window length plus --gap-s of GNSS in
