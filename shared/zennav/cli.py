@@ -19,7 +19,8 @@ def main():
 
 
 # Subcommands register below (one import per command module).
-from .replay_cli import demo, replay  # noqa: E402
+from .demo_cli import demo  # noqa: E402
+from .replay_cli import replay  # noqa: E402
 
 main.add_command(replay)
 main.add_command(demo)

@@ -1,13 +1,22 @@
-"""`zennav demo`: the whole process set on loopback over the built-in simulated drive, scored against its truth.
+"""`zennav demo`: the whole process set on loopback, the learning loop over the bus, scored against the truth.
 
-1. Launches deploy/demo.yaml (router, ins, attitude, predictor, trainer, monitor, record, ingest) on a free
-   loopback port with zennav.launch; ingest streams sim:car as fast as the pipeline drains without loss and
-   ``zennav record`` writes the vehicle's whole key space to MCAP; the demo process subscribes to the
-   navigation solution itself. Meanwhile a thread runs the same drive in process: the plain replay and the
-   replay with in-process learned compensation (ANFIS, body-velocity target).
-2. Checks that no sample was lost or duplicated (ins counters, solution sequence, the recording's count)
-   and that the distributed solution equals the in-process replay, scores both with zennav.metrics, writes
-   nav.txt, nav.csv, metrics.json and PNG plots, and prints the tables and the paths.
+1. Launches deploy/demo.yaml on a free loopback port (zennav.launch): router, two ins, attitude, trainer,
+   predictor, monitor, record and ingest, each a process. ingest streams the dataset (default: the built-in
+   simulated car drive) with GNSS withheld in the outage windows, as fast as the pipeline drains without loss.
+   The ins ``ins`` runs the learning loop: its training samples go to the trainer, which publishes versioned
+   parameter sets; in the outages its queries go to the predictor, which answers with the set trained through
+   the query's sample count, and the ins fuses the answers. Both run in lockstep (``--lockstep``: the ins waits
+   for each answer before its next sample, the predictor for the set the query names), so the distributed run
+   is reproducible. The second ins, ``ins-plain`` (learning off, outputs under nav/plain/...), navigates the
+   same stream: the no-learning row is measured over the bus too. ``zennav record`` writes every key to MCAP.
+2. Meanwhile a thread runs the same data in process (zennav.replay): the plain replay and the replay with the
+   in-process learning loop (zennav.learn.loop: the trainer's Learner and the predictor's PredictorCore with
+   the same settings and seed). Both use the ins's filter parameter file (deploy/ins.yaml).
+3. Checks that no sample was lost or duplicated, compares each distributed solution with its in-process twin
+   (prints the largest differences), scores both against the truth, prints what the learning loop did over
+   the bus (sets published and used, queries answered, refused and late, answers fused and rejected) and says
+   plainly when learning could not help; writes nav.txt, nav.csv, metrics.json (the learned solution),
+   no-learning/ (the same for the plain ins), PNG plots and the services' log.
 
 Any service that fails, a set that does not come up, or a run that outlasts its time limit stops every
 process and raises click.ClickException (exit code 1) with the tail of the services' log.
@@ -19,8 +28,8 @@ import signal
 import socket
 import threading
 import time
-from collections import deque
-from dataclasses import dataclass
+from collections import Counter, deque
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import click
@@ -32,25 +41,55 @@ from .nav.types import NS
 from .replay import ReplayResult, run_replay
 
 DEMO_LAUNCH = Path(__file__).resolve().parents[2] / "deploy" / "demo.yaml"
-LEARNED = ("anfis", "body_velocity")  # the in-process learned compensation the demo scores
+TARGET = "body_velocity"  # the target variant the demo's learning loop learns (zennav.nav.learning)
+PLAIN_PREFIX = "plain"  # nav prefix of the second ins, the one without learning (zennav-ins --nav-prefix)
+RUNS = {"": "learned", PLAIN_PREFIX: "no learning"}  # nav prefix -> run
+
+
+@dataclass
+class DemoSpec:
+    """What the demo streams: a dataset spec (zennav.datasets.registry) with loader options, GNSS outage windows
+    (start_s, duration_s) and/or a periodic pattern (period_s, duration_s, first_s), the learned compensation
+    (zennav.learn.settings.COMPENSATIONS) and its model seed."""
+
+    dataset: str = "sim:car"
+    options: dict = field(default_factory=dict)
+    outages: list = field(default_factory=list)
+    every: tuple | None = None
+    compensation: str = "anfis"
+    seed: int = 0
 
 
 @dataclass
 class Pipeline:
-    """What the distributed run produced: the solution as a ReplayResult, the ins's final nav_status
-    message, the expected sample counts and the recording's message statistics."""
+    """What one ins of the distributed run produced: the solution as a ReplayResult, its final nav_status
+    message and the number of its solutions in the recording."""
 
     result: ReplayResult
     status: dict
-    counts: dict
     recorded: int
-    recorded_keys: int
 
 
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _with_options(cmd: list, options: dict[str, list[str]]) -> list:
+    """cmd with every ``flag VALUE`` pair of the given flags removed, then each flag added with its values
+    (one pair per value)."""
+    out, i = [], 0
+    while i < len(cmd):
+        if cmd[i] in options:
+            i += 2
+            continue
+        out.append(cmd[i])
+        i += 1
+    for flag, values in options.items():
+        for v in values:
+            out += [flag, str(v)]
+    return out
 
 
 def _set_arg(cmd: list, flag: str, value: str, service: str) -> None:
@@ -81,35 +120,44 @@ class _Tee:
 
 class _Collector:
     """The distributed run as the demo process receives it (lossless fifo subscriptions): the stream start,
-    every navigation solution and the ins's end-of-stream status; ``complete`` is set once all are in."""
+    every solution and the end-of-stream status of both ins; ``complete`` is set once all are in."""
 
     def __init__(self, bus):
+        from .messages import Keys
+
         self.start: dict | None = None
-        self.status: dict | None = None
-        self.solutions: list[dict] = []
+        self.status: dict[str, dict] = {}
+        self.solutions: dict[str, list[dict]] = {p: [] for p in RUNS}
+        self.solution_keys: dict[str, str] = {}
         self.complete = threading.Event()
-        k = bus.keys
-        self.solution_key = k.nav_solution()
-        bus.subscribe(k.stream(), self._on_stream, channel="fifo", name="demo-stream")
-        bus.subscribe(k.nav_solution(), self._on_solution, channel="fifo", capacity=65536, name="demo-solution")
-        bus.subscribe(k.nav_status(), self._on_status, channel="fifo", name="demo-status")
+        self._lock = threading.Lock()
+        bus.subscribe(bus.keys.stream(), self._on_stream, channel="fifo", name="demo-stream")
+        for prefix in RUNS:
+            k = Keys(bus.keys.vehicle, nav_prefix=prefix)
+            self.solution_keys[prefix] = k.nav_solution()
+            bus.subscribe(k.nav_solution(), lambda key, msg, recv_ns, p=prefix: self._on_solution(p, msg),
+                          channel="fifo", capacity=65536, name=f"demo-solution{prefix}")
+            bus.subscribe(k.nav_status(), lambda key, msg, recv_ns, p=prefix: self._on_status(p, msg),
+                          channel="fifo", name=f"demo-status{prefix}")
 
     def _on_stream(self, key, msg, recv_ns) -> None:
         if msg["schema"] == "stream_start":
             self.start = msg
 
-    def _on_solution(self, key, msg, recv_ns) -> None:
-        self.solutions.append(msg)
+    def _on_solution(self, prefix: str, msg: dict) -> None:
+        self.solutions[prefix].append(msg)
         self._check()
 
-    def _on_status(self, key, msg, recv_ns) -> None:
+    def _on_status(self, prefix: str, msg: dict) -> None:
         if msg["stream"].get("done"):
-            self.status = msg
+            self.status[prefix] = msg
             self._check()
 
     def _check(self) -> None:
-        if self.status is not None and len(self.solutions) >= self.status["stream"]["solutions"]:
-            self.complete.set()
+        with self._lock:
+            if all(p in self.status and len(self.solutions[p]) >= self.status[p]["stream"]["solutions"]
+                   for p in RUNS):
+                self.complete.set()
 
 
 class _DemoLauncher(Launcher):
@@ -156,9 +204,14 @@ def _background(fn):
     return result
 
 
-def run_set(launch_file: Path, out: Path, duration_s: float, outage: tuple[float, float]) -> tuple[Path, _Collector]:
-    """Launch the process set until the recorder and the demo have every solution; returns the recording's
-    path and what the demo received."""
+def _ds_duration_s(ds) -> float:
+    end = ds.imu.t_ns[-1] if ds.config.end_t_ns is None else min(ds.imu.t_ns[-1], ds.config.end_t_ns)
+    return float(end - ds.initial.t_ns) / NS
+
+
+def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: float) -> tuple[Path, _Collector]:
+    """Launch the process set until the recorder and the demo have every solution of both ins; returns the
+    recording's path and what the demo received. settings: the learning loop's (the trainer gets them)."""
     from .bus import Bus
 
     if not launch_file.is_file():
@@ -166,26 +219,35 @@ def run_set(launch_file: Path, out: Path, duration_s: float, outage: tuple[float
                                    "or give --launch-file)")
     recording = out / "demo.mcap"
     recording.unlink(missing_ok=True)
-    spec = load_launch(launch_file, {"rendezvous": f"tcp/127.0.0.1:{free_port()}"})
-    svc = {s.name: s for s in spec.services}
-    for need in ("record", "ingest"):
+    launch = load_launch(launch_file, {"rendezvous": f"tcp/127.0.0.1:{free_port()}"})
+    svc = {s.name: s for s in launch.services}
+    for need in ("record", "ingest", "trainer"):
         if need not in svc:
             raise click.ClickException(f"{launch_file} has no '{need}' service")
     _set_arg(svc["record"].command, "--", str(recording), "record")
-    _set_arg(svc["ingest"].command, "-o", f"duration_s={float(duration_s)!r}", "ingest")
-    _set_arg(svc["ingest"].command, "--outage", f"{outage[0]!r}:{outage[1]!r}", "ingest")
+    ingest = svc["ingest"].command
+    if len(ingest) < 2 or ingest[1].startswith("-"):
+        raise click.ClickException(f"{launch_file}: the ingest command must name its dataset first")
+    ingest[1] = spec.dataset
+    svc["ingest"].command = _with_options(ingest, {
+        "-o": [f"{k}={v!r}" for k, v in spec.options.items()],
+        "--outage": [f"{s!r}:{d!r}" for s, d in spec.outages],
+        "--outage-every": [":".join(repr(float(x)) for x in spec.every)] if spec.every else []})
+    svc["trainer"].command = _with_options(svc["trainer"].command, {
+        "--model": [settings.model], "--optimizer": [settings.optimizer], "--seed": [settings.seed],
+        "--targets": [TARGET]})
     for k in ("ZENNAV_LISTEN", "ZENNAV_ZENOH_CONFIG"):  # the set's own loopback endpoints and configs only
         os.environ.pop(k, None)
     log = out / "launch.log"
-    click.echo(f"process set {launch_file} ({len(spec.services)} processes), rendezvous {spec.rendezvous}, "
+    click.echo(f"process set {launch_file} ({len(launch.services)} processes), rendezvous {launch.rendezvous}, "
                f"multicast scouting off; full log: {log}")
-    bus = Bus(f"demo-{os.getpid()}", spec.vehicle, mode="peer", connect=[spec.rendezvous],
+    bus = Bus(f"demo-{os.getpid()}", launch.vehicle, mode="peer", connect=[launch.rendezvous],
               listen=["tcp/127.0.0.1:0"], token=False)
     collector = _Collector(bus)
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     with open(log, "w") as f:
         tee = _Tee(f)
-        launcher = _DemoLauncher(spec, tee, bus, collector.complete, limit_s=spec.up_timeout_s + duration_s)
+        launcher = _DemoLauncher(launch, tee, bus, collector.complete, limit_s=launch.up_timeout_s + limit_s)
         try:
             rc = launcher.run()
         finally:
@@ -203,27 +265,23 @@ def run_set(launch_file: Path, out: Path, duration_s: float, outage: tuple[float
     raise click.ClickException(f"demo failed: {why} (every process was stopped; full log: {log})")
 
 
-def pipeline_result(recording: Path, got: _Collector) -> Pipeline:
-    """The distributed solution as a ReplayResult, checked: nothing lost or duplicated between ingest, ins,
-    the demo and the recording; raises ClickException otherwise."""
-    from mcap.reader import make_reader
-
-    start, status, sols = got.start, got.status, got.solutions
+def pipeline_result(got: _Collector, prefix: str, recorded: dict[str, int]) -> Pipeline:
+    """One ins's distributed solution as a ReplayResult, checked: nothing lost or duplicated between ingest,
+    that ins, the demo and the recording (recorded: messages per key); raises ClickException otherwise."""
+    start, status, sols = got.start, got.status[prefix], got.solutions[prefix]
     if start is None:
         raise click.ClickException("no stream_start received from ingest")
-    with open(recording, "rb") as f:
-        summary = make_reader(f).get_summary()
-    stats = summary.statistics
-    recorded = {summary.channels[c].topic: n for c, n in stats.channel_message_counts.items()}
+    who = f"ins ({RUNS[prefix]})"
     counts, st = start["counts"], status["stream"]
+    key = got.solution_keys[prefix]
     problems = [f"{what}: {n} of {want}" for what, n, want in
-                (("IMU consumed by ins", status["imu_count"], counts["imu"]),
-                 ("GNSS consumed by ins", status["gnss_count"], counts["gnss"]),
-                 ("solutions received", len(sols), counts["imu"]),
-                 ("solutions recorded", recorded.get(got.solution_key, 0), counts["imu"])) if n != want]
-    problems += [f"{n} {what}" for what in ("gap", "duplicate") if (n := st.get(what, 0))]
+                ((f"IMU consumed by {who}", status["imu_count"], counts["imu"]),
+                 (f"GNSS consumed by {who}", status["gnss_count"], counts["gnss"]),
+                 (f"solutions of {who} received", len(sols), counts["imu"]),
+                 (f"solutions of {who} recorded", recorded.get(key, 0), counts["imu"])) if n != want]
+    problems += [f"{n} {what} ({who})" for what in ("gap", "duplicate") if (n := st.get(what, 0))]
     if [m["seq"] for m in sols] != list(range(len(sols))):
-        problems.append("solution sequence numbers not contiguous")
+        problems.append(f"solution sequence numbers of {who} not contiguous")
     if problems:
         raise click.ClickException(f"the distributed run lost or duplicated samples: {'; '.join(problems)}")
     res = ReplayResult(
@@ -238,7 +296,99 @@ def pipeline_result(recording: Path, got: _Collector) -> Pipeline:
         status={"gnss_state": status["gnss_state"], "counters": status["counters"]},
         wall_s=float(st["wall_s"]),
     )
-    return Pipeline(res, status, counts, stats.message_count, len(recorded))
+    return Pipeline(res, status, recorded.get(key, 0))
+
+
+def recording_stats(recording: Path) -> tuple[dict[str, int], int]:
+    """Messages per key in the recording, and their total."""
+    from mcap.reader import make_reader
+
+    with open(recording, "rb") as f:
+        summary = make_reader(f).get_summary()
+    if summary is None or summary.statistics is None:
+        raise click.ClickException(f"{recording} has no summary (the recorder did not finish it)")
+    stats = summary.statistics
+    per_key = {summary.channels[c].topic: n for c, n in stats.channel_message_counts.items()}
+    return per_key, stats.message_count
+
+
+def learning_over_the_bus(recording: Path, ins_status: dict) -> dict:
+    """What the learning loop did over the bus, from the recording (the trainer's parameter sets, the
+    predictor's answers and refusals) and the learning ins's final status (its side: queries, fused answers,
+    rejections): the figures the demo prints and writes to metrics.json."""
+    from .recording import read_mcap
+
+    sets, answers, refused = [], Counter(), Counter()
+    for key, msg, _payload, _t in read_mcap(recording, [r"/learn/model/", r"/learn/correction$"]):
+        if msg is None:
+            continue
+        if "/learn/model/" in key:
+            sets.append({"name": msg["name"], "version": int(msg["version"]),
+                         "samples_seen": int(msg.get("metrics", {}).get("samples_seen", -1))})
+        elif msg.get("refused"):
+            refused[str(msg["refused"])] += 1
+        else:
+            answers[int(msg["version"])] += 1
+    model = ins_status.get("model", {})
+    counters = ins_status.get("counters", {})
+    return {"sets_published": sets, "answers_by_version": {str(v): n for v, n in sorted(answers.items())},
+            "answered": sum(answers.values()), "refused": dict(refused), "ins": model,
+            "engine_rejections": {k: int(v) for k, v in counters.items() if k.startswith("learned_")}}
+
+
+def _learning_lines(lo: dict) -> list[str]:
+    sets = lo["sets_published"]
+    ins = lo["ins"]
+    versions = ", ".join(f"v{s['version']} (through {s['samples_seen']})" for s in sets) or "none"
+    used = ", ".join(f"v{v}: {n}" for v, n in lo["answers_by_version"].items()) or "none"
+    refused = ", ".join(f"{r} {n}" for r, n in lo["refused"].items()) or "none"
+    rejected = {k: v for k, v in ins.items() if k.startswith("refused_") or k in ("not_fused", "unanswered",
+                                                                                   "unmatched", "mismatched")}
+    return [f"  trainer   {len(sets)} parameter sets published: {versions} samples",
+            f"  predictor {lo['answered']} queries answered (by set version: {used}); refused: {refused}; late "
+            f"sets: {ins.get('lockstep_timeouts', 0)}",
+            f"  ins       {ins.get('samples', 0)} training samples sent, {ins.get('queries', 0)} queries sent, "
+            f"{ins.get('fused', 0)} answers fused; not fused: {rejected or 'none'}; engine rejections: "
+            f"{lo['engine_rejections'] or 'none'}"]
+
+
+def could_not_help(lo: dict) -> str:
+    """Why the learned run could not differ from the plain one ('' when some answer was fused)."""
+    ins = lo["ins"]
+    if ins.get("fused", 0) > 0:
+        return ""
+    if not ins.get("queries", 0):
+        return "the ins sent no query (no GNSS outage long enough, or learning off)"
+    if not lo["sets_published"]:
+        return (f"no model yet: the trainer had {ins.get('samples', 0)} training samples when GNSS was lost and "
+                "published no set (too few samples before the outage; a longer drive or a later outage helps)")
+    if not lo["answered"]:
+        return f"every query was refused ({', '.join(f'{r} {n}' for r, n in lo['refused'].items())})"
+    return "no answer passed the ins's checks (see the rejections above)"
+
+
+def side_by_side(rows: dict[str, dict]) -> str:
+    """The accuracy tables of several runs (label -> metrics dict) side by side."""
+    tables = {label: [line.split("  ", 1) for line in format_table(m).splitlines()] for label, m in rows.items()}
+    first = next(iter(tables.values()))
+    names = [r[0].rstrip() for r in first]
+    width = max(len(n) for n in names)
+    cols = {label: [r[1].strip() if len(r) > 1 else "" for r in t] for label, t in tables.items()}
+    widths = {label: max(len(label), *(len(c) for c in col)) for label, col in cols.items()}
+    head = f"{'':<{width}}  " + "  ".join(f"{label:<{widths[label]}}" for label in cols)
+    body = [f"{n:<{width}}  " + "  ".join(f"{cols[label][i]:<{widths[label]}}" for label in cols)
+            for i, n in enumerate(names)]
+    return "\n".join([head.rstrip(), *(b.rstrip() for b in body)])
+
+
+def _verdict(diff: dict) -> str:
+    if not diff["same_epochs"]:
+        return "DIFFERENT epochs"
+    verdict = ("identical, bit for bit" if diff["bit_for_bit"] else "identical to 1e-9" if diff["identical"]
+               else "DIFFERENT")
+    return (f"max |difference| position {diff['position_m']:.3g} m, velocity {diff['velocity_mps']:.3g} m/s, "
+            f"quaternion {diff['quaternion']:.3g}, position std {diff['std_pos_m']:.3g} m, GNSS state "
+            f"{'same' if diff['gnss_state_same'] else 'DIFFERENT'}: {verdict}")
 
 
 def compare(a: ReplayResult, b: ReplayResult) -> dict:
@@ -324,62 +474,80 @@ def write_plots(out: Path, ds, runs: dict[str, ReplayResult]) -> list[Path]:
     return paths
 
 
-def run_demo(out: Path, duration_s: float, outage: tuple[float, float], launch_file: Path = DEMO_LAUNCH) -> None:
+def run_demo(out: Path, spec: DemoSpec, launch_file: Path = DEMO_LAUNCH) -> None:
     """Everything `zennav demo` does (see the module docstring); raises click.ClickException on failure."""
-    from .learn.loop import make_compensator
     from .datasets.registry import load_dataset
+    from .learn.loop import InProcessLoop
+    from .learn.settings import compensation_settings
+    from .params import load_filter_params, nav_config
 
     wall0 = time.monotonic()
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    ds = load_dataset("sim:car", duration_s=float(duration_s))
-    outages = [outage]
-    click.echo(f"zennav demo: simulated car drive ({ds.name}, {duration_s:g} s, 200 Hz IMU, 1 Hz GNSS), GNSS "
-               f"withheld {outage[0]:g}..{outage[0] + outage[1]:g} s\n")
-    in_process = _background(lambda: (run_replay(ds, outages=outages),
-                                       run_replay(ds, outages=outages, compensator=make_compensator(*LEARNED))))
-    recording, got = run_set(launch_file, out, duration_s, outage)
-    pipe = pipeline_result(recording, got)
-    dist = pipe.result
-    ref, learned = in_process()
+    ds = load_dataset(spec.dataset, **spec.options)
+    ds.config = nav_config(ds.config, load_filter_params(None))  # the ins's filter (deploy/ins.yaml)
+    settings = compensation_settings(spec.compensation, spec.seed)
+    duration_s = _ds_duration_s(ds)
+    windows = ", ".join(f"{s:g}..{s + d:g} s" for s, d in spec.outages)
+    if spec.every:
+        windows = ", ".join(filter(None, [windows, f"{spec.every[1]:g} s every {spec.every[0]:g} s from "
+                                                   f"{spec.every[2]:g} s"]))
+    click.echo(f"zennav demo: {ds.name} ({duration_s:.0f} s), GNSS withheld {windows or 'never'}; learning loop "
+               f"over the bus: {settings.label} on the {TARGET} target, seed {settings.seed}\n")
 
-    st = pipe.status
-    diff = compare(dist, ref)
-    click.echo(f"\nins consumed {st['imu_count']}/{pipe.counts['imu']} IMU and {st['gnss_count']}/"
-               f"{pipe.counts['gnss']} GNSS samples over Zenoh in {dist.wall_s:.1f} s "
-               f"({st['imu_count'] / max(dist.wall_s, 1e-9):.0f} IMU/s): none lost or duplicated")
-    if diff["same_epochs"]:
-        verdict = ("identical, bit for bit" if diff["bit_for_bit"] else "identical to 1e-9" if diff["identical"]
-                   else "DIFFERENT")
-        click.echo(f"distributed vs in-process replay, {len(dist.t_ns)} epochs: max |difference| position "
-                   f"{diff['position_m']:.3g} m, velocity {diff['velocity_mps']:.3g} m/s, quaternion "
-                   f"{diff['quaternion']:.3g}, position std {diff['std_pos_m']:.3g} m, GNSS state "
-                   f"{'same' if diff['gnss_state_same'] else 'DIFFERENT'}: {verdict}")
-    else:
-        click.echo(f"distributed vs in-process replay: DIFFERENT epochs ({len(dist.t_ns)} vs {len(ref.t_ns)})")
+    def in_process():
+        loop = InProcessLoop(TARGET, settings)
+        return (run_replay(ds, outages=spec.outages, outage_every=spec.every),
+                run_replay(ds, outages=spec.outages, outage_every=spec.every, compensator=loop))
 
-    m_dist = evaluate(ds, dist)
-    m_dist["compensation"] = {"model": "none", "target": None}
-    m_dist["pipeline"] = {"launch_file": str(launch_file), "recording": str(recording),
-                          "recorded_messages": pipe.recorded, "ins_status": st, "vs_in_process": diff}
-    m_learned = evaluate(ds, learned)
-    m_learned["compensation"] = {"model": LEARNED[0], "target": LEARNED[1], "where": "in-process"}
-    learned_dir = out / f"learned-{LEARNED[0]}-inprocess"
-    write_outputs(out, ds, dist, m_dist)
-    write_outputs(learned_dir, ds, learned, m_learned)
-    plots = write_plots(out, ds, {"distributed, no compensation": dist,
-                                  f"learned {LEARNED[0]} ({LEARNED[1]}), in-process": learned})
+    in_process_result = _background(in_process)
+    recording, got = run_set(launch_file, out, spec, settings, limit_s=2.0 * duration_s + 300.0)
+    recorded, n_recorded = recording_stats(recording)
+    pipes = {p: pipeline_result(got, p, recorded) for p in RUNS}
+    learned, plain = pipes[""], pipes[PLAIN_PREFIX]
+    ref_plain, ref_learned = in_process_result()
+    diffs = {"no_learning": compare(plain.result, ref_plain), "learned": compare(learned.result, ref_learned)}
+    lo = learning_over_the_bus(recording, learned.status)
 
-    click.echo("\nAccuracy, distributed pipeline (ingest -> ins over Zenoh), no learned compensation:")
-    click.echo(format_table(m_dist))
-    click.echo(f"\nAccuracy with learned compensation ({LEARNED[0]}, {LEARNED[1]} target), IN-PROCESS replay "
-               "(zennav.compensation in this process, not the trainer/predictor services):")
-    click.echo(format_table(m_learned))
-    click.echo(f"\nrecording  {recording} ({pipe.recorded} messages on {pipe.recorded_keys} keys; opens in Foxglove)"
-               f"\nsolution   {out / 'nav.txt'}, nav.csv, metrics.json"
-               f"\nlearned    {learned_dir / 'nav.txt'}, nav.csv, metrics.json"
+    for p, pipe in pipes.items():
+        st = pipe.status
+        click.echo(f"\nins ({RUNS[p]}) consumed {st['imu_count']}/{got.start['counts']['imu']} IMU and "
+                   f"{st['gnss_count']}/{got.start['counts']['gnss']} GNSS samples over Zenoh in "
+                   f"{pipe.result.wall_s:.1f} s ({st['imu_count'] / max(pipe.result.wall_s, 1e-9):.0f} IMU/s): "
+                   "none lost or duplicated")
+    n = len(plain.result.t_ns)
+    click.echo(f"no learning, distributed vs in-process replay, {n} epochs: {_verdict(diffs['no_learning'])}")
+    click.echo(f"learned, distributed (lockstep) vs in-process learning loop, {n} epochs: "
+               f"{_verdict(diffs['learned'])}")
+    click.echo(f"\nlearning loop over the bus ({settings.label}, {TARGET}):")
+    click.echo("\n".join(_learning_lines(lo)))
+    why = could_not_help(lo)
+
+    m_plain, m_learned = evaluate(ds, plain.result), evaluate(ds, learned.result)
+    for m, label in ((m_plain, "none"), (m_learned, settings.label)):
+        m["compensation"] = {"model": label, "target": TARGET if label != "none" else None, "seed": settings.seed,
+                             "where": "over the bus (trainer, predictor and ins services)"}
+    m_learned["pipeline"] = {"launch_file": str(launch_file), "recording": str(recording),
+                             "recorded_messages": n_recorded, "ins_status": learned.status,
+                             "vs_in_process": diffs["learned"], "learning": lo, "could_not_help": why}
+    m_plain["pipeline"] = {"launch_file": str(launch_file), "recording": str(recording),
+                           "ins_status": plain.status, "vs_in_process": diffs["no_learning"]}
+    plain_dir = out / "no-learning"
+    write_outputs(out, ds, learned.result, m_learned)
+    write_outputs(plain_dir, ds, plain.result, m_plain)
+    plots = write_plots(out, ds, {"no learning (over the bus)": plain.result,
+                                  f"learned {settings.label} (over the bus)": learned.result})
+
+    click.echo("\nAccuracy against the truth, both measured over the bus:")
+    click.echo(side_by_side({"no learning": m_plain, f"learned ({settings.label}, {TARGET})": m_learned}))
+    if why:
+        click.echo(f"\nLEARNING COULD NOT HELP in this run: {why}; the learned row equals the unlearned one.")
+    click.echo(f"\nrecording  {recording} ({n_recorded} messages on {len(recorded)} keys; opens in Foxglove)"
+               f"\nlearned    {out / 'nav.txt'}, nav.csv, metrics.json"
+               f"\nno learning {plain_dir / 'nav.txt'}, nav.csv, metrics.json"
                f"\nplots      {plots[0]}, {plots[1].name}"
                f"\nlog        {out / 'launch.log'}"
                f"\ndone in {time.monotonic() - wall0:.0f} s")
-    if not diff["identical"]:
-        raise click.ClickException("the distributed solution differs from the in-process replay")
+    bad = [what for what, d in diffs.items() if not d["identical"]]
+    if bad:
+        raise click.ClickException(f"the distributed solution differs from the in-process replay ({', '.join(bad)})")

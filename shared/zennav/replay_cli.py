@@ -1,4 +1,4 @@
-"""`zennav replay` (the core in one process over a dataset, with its accuracy) and `zennav demo` (zennav.demo)."""
+"""`zennav replay`: the core in one process over a dataset, with its accuracy."""
 from __future__ import annotations
 
 import json
@@ -141,27 +141,3 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, outages
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
                    heading_unknown, adaptive_r, seed, params)
-
-
-@click.command()
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/demo"), show_default=True,
-              help="Where the recording, nav.txt, nav.csv, metrics.json, the plots and the services' log go.")
-@click.option("--duration", type=click.FloatRange(min=30.0), default=600.0, show_default=True,
-              help="Length of the simulated drive [s].")
-@click.option("--outage", default="300:60", show_default=True, metavar="START:DURATION",
-              callback=lambda c, p, v: _parse_outage(v), help="GNSS outage [s from the start of the drive].")
-@click.option("--launch-file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
-              help="The process set to run [deploy/demo.yaml]; it needs 'record' and 'ingest' services.")
-def demo(out, duration, outage, launch_file):
-    """Run the whole process set on loopback (deploy/demo.yaml: router, ins, attitude, predictor, trainer,
-    monitor, record, ingest), stream the built-in simulated car drive (200 Hz MEMS IMU, 1 Hz GNSS) with a
-    GNSS outage through it as fast as it drains without loss, record the bus to MCAP, check that the
-    distributed solution equals the in-process replay, and print the accuracy table without and with
-    learned compensation (in-process until the trainer/predictor services land) and where the outputs went.
-    Needs no external data. The one-process replay alone: zennav replay sim:car --outage 300:60."""
-    from .demo import DEMO_LAUNCH, run_demo
-
-    _setup_logging(0)
-    if outage[0] + outage[1] > duration:
-        raise click.BadParameter(f"the outage ends after the {duration:g} s drive", param_hint="--outage")
-    run_demo(out, duration, outage, launch_file or DEMO_LAUNCH)

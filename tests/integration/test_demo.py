@@ -31,33 +31,40 @@ def _running(pids: list[int]) -> list[str]:
     return [line for line in out.splitlines() if line.split() and not line.split()[1].startswith("Z")]
 
 
-def test_demo_short_drive(tmp_path):
-    """A 120 s drive with a 30 s outage: exit 0, every output written, the distributed solution (as printed,
-    in metrics.json and in the recording) equals the in-process replay, and no process is left behind."""
+def test_demo_short_drive_says_learning_could_not_help(tmp_path):
+    """A 120 s drive with a 30 s outage at 60 s: exit 0, every output written, both distributed solutions (as
+    printed, in metrics.json and in the recording) equal their in-process replays, the learning loop had too few
+    samples before the outage and the demo says so, and no process is left behind."""
     from zennav.datasets.registry import load_dataset
+    from zennav.params import load_filter_params, nav_config
     from zennav.recording import read_mcap
     from zennav.replay import run_replay
 
     out = tmp_path / "demo"
     p, pids = _demo("--duration", 120, "--outage", "60:30", "--out", out)
     assert p.returncode == 0, p.stdout + p.stderr
-    assert len(pids) == 8, p.stdout
+    assert len(pids) == 9, p.stdout
     assert not _running(pids)
     for name in ("demo.mcap", "nav.txt", "nav.csv", "metrics.json", "horizontal_error.png", "track.png",
-                 "launch.log", "learned-anfis-inprocess/nav.txt", "learned-anfis-inprocess/metrics.json"):
+                 "launch.log", "no-learning/nav.txt", "no-learning/metrics.json"):
         assert (out / name).stat().st_size > 0, name
-    assert "identical, bit for bit" in p.stdout
-    assert "IN-PROCESS" in p.stdout and "outage 60s+30s" in p.stdout
+    assert p.stdout.count("identical, bit for bit") == 2, p.stdout
+    assert "LEARNING COULD NOT HELP" in p.stdout and "no model yet" in p.stdout, p.stdout
+    assert "outage 60s+30s" in p.stdout
     m = json.loads((out / "metrics.json").read_text())
-    assert m["pipeline"]["vs_in_process"]["bit_for_bit"]
+    assert m["pipeline"]["vs_in_process"]["bit_for_bit"] and m["pipeline"]["could_not_help"]
+    assert m["pipeline"]["learning"]["sets_published"] == []
     assert m["outages"][0]["max_horizontal_m"] > 0
 
-    ref = run_replay(load_dataset("sim:car", duration_s=120.0), outages=[(60.0, 30.0)])
-    sols = [msg for _k, msg, _p, _t in read_mcap(out / "demo.mcap", [r"/nav/solution$"])]
-    assert [s["seq"] for s in sols] == list(range(len(ref.t_ns)))
-    assert np.array_equal([s["t_ns"] for s in sols], ref.t_ns)
-    for field, want in (("llh", ref.llh), ("v_n", ref.v_n), ("q_nb", ref.q_nb)):
-        assert np.abs(np.array([s[field] for s in sols]) - want).max() <= 1e-9, field
+    ds = load_dataset("sim:car", duration_s=120.0)
+    ds.config = nav_config(ds.config, load_filter_params(None))
+    ref = run_replay(ds, outages=[(60.0, 30.0)])
+    for key in (r"/nav/solution$", r"/nav/plain/solution$"):
+        sols = [msg for _k, msg, _p, _t in read_mcap(out / "demo.mcap", [key])]
+        assert [s["seq"] for s in sols] == list(range(len(ref.t_ns)))
+        assert np.array_equal([s["t_ns"] for s in sols], ref.t_ns)
+        for field, want in (("llh", ref.llh), ("v_n", ref.v_n), ("q_nb", ref.q_nb)):
+            assert np.abs(np.array([s[field] for s in sols]) - want).max() <= 1e-9, (key, field)
 
 
 @pytest.mark.parametrize("how", ["crashes", "never comes up"])
