@@ -79,7 +79,7 @@ def open_config(mode: str | None = None, config_file=None, connect=None, listen=
         conf.insert_json5("scouting/multicast/enabled", "false")
         conf.insert_json5("connect/endpoints", f'["{DEFAULT_ENDPOINT}"]')
         conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-        conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", "600000000")
+        conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", "60000000")
     if mode:
         conf.insert_json5("mode", f'"{mode}"')
     connect = _split(connect if connect is not None else os.environ.get("ZENNAV_CONNECT"))
