@@ -46,7 +46,7 @@ def quat_normalize(q) -> np.ndarray:
 
 def quat_to_dcm(q) -> np.ndarray:
     """C_ab from q_ab: (4,) -> (3, 3), or (N, 4) -> (N, 3, 3)."""
-    batch = np.ndim(q) == 2
+    batch = getattr(q, "ndim", 1) == 2
     q0, q1, q2, q3 = np.asarray(q).T if batch else q
     C = np.array(
         [
