@@ -35,7 +35,7 @@ from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_to_qua
 from .strapdown import NavState, mechanize
 from .types import NS, GnssFix, InitialState, NavConfig
 
-__all__ = ["AidReport", "NavSolution", "Navigator", "initial_covariance"]
+__all__ = ["AidReport", "NavSolution", "Navigator"]
 
 log = logging.getLogger("zennav.nav")
 
