@@ -352,16 +352,17 @@ def _learning_lines(lo: dict) -> list[str]:
             f"{lo['engine_rejections'] or 'none'}"]
 
 
-def could_not_help(lo: dict) -> str:
-    """Why the learned run could not differ from the plain one ('' when some answer was fused)."""
+def could_not_help(lo: dict, min_samples: int) -> str:
+    """Why the learned run could not differ from the plain one ('' when some answer was fused); min_samples: the
+    samples the trainer needs before its first fit."""
     ins = lo["ins"]
     if ins.get("fused", 0) > 0:
         return ""
     if not ins.get("queries", 0):
         return "the ins sent no query (no GNSS outage long enough, or learning off)"
     if not lo["sets_published"]:
-        return (f"no model yet: the trainer had {ins.get('samples', 0)} training samples when GNSS was lost and "
-                "published no set (too few samples before the outage; a longer drive or a later outage helps)")
+        return (f"no model yet: the ins had sent {ins.get('samples', 0)} training samples when GNSS was lost, the "
+                f"trainer fits from {min_samples} (a longer drive or a later outage helps)")
     if not lo["answered"]:
         return f"every query was refused ({', '.join(f'{r} {n}' for r, n in lo['refused'].items())})"
     return "no answer passed the ins's checks (see the rejections above)"
@@ -521,7 +522,7 @@ def run_demo(out: Path, spec: DemoSpec, launch_file: Path = DEMO_LAUNCH) -> None
                f"{_verdict(diffs['learned'])}")
     click.echo(f"\nlearning loop over the bus ({settings.label}, {TARGET}):")
     click.echo("\n".join(_learning_lines(lo)))
-    why = could_not_help(lo)
+    why = could_not_help(lo, settings.min_samples)
 
     m_plain, m_learned = evaluate(ds, plain.result), evaluate(ds, learned.result)
     for m, label in ((m_plain, "none"), (m_learned, settings.label)):
