@@ -122,7 +122,7 @@ def run_replay(
 ) -> ReplayResult:
     """Run the engine over ds from its initial-state time to its end (config.end_t_ns or the last IMU sample).
     GNSS fixes inside the windows are withheld; every other fix is handed over before the first IMU sample
-    at or after its time. A compensator (zennav.compensation) learns from the engine's training samples and
+    at or after its time. A compensator (zennav.learn.loop) learns from the engine's training samples and
     answers its queries while GNSS is lost."""
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     nav = navigator or Navigator(config, ds.initial)
@@ -143,17 +143,17 @@ def run_replay(
             nav.on_gnss(gnss.fix_at(k))
             continue
         nav.on_imu(t_list[k], dtheta[k], dvel[k])
-        s = nav.state
-        t_out[i] = nav.t_ns
-        out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)
-        std[i] = nav.std_pos_ned
-        outage[i] = nav.gnss_state != "valid"
-        if compensator is not None:
+        if compensator is not None:  # answers fused at this sample are in its solution, as the ins publishes it
             compensator.add(nav.pop_samples())
             for query in nav.pop_queries():
                 prediction = compensator.predict(query)
                 if prediction is not None:
                     nav.on_correction(query, *prediction)
+        s = nav.state
+        t_out[i] = nav.t_ns
+        out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)
+        std[i] = nav.std_pos_ned
+        outage[i] = nav.gnss_state != "valid"
         reports.extend(nav.pop_reports())
         i += 1
     wall = time.perf_counter() - wall0

@@ -33,6 +33,9 @@ from zennav.params import ParamError, load_filter_params
 from zennav.service import ServiceRunner, add_bus_args
 
 
+LOCKSTEP_QUEUE = 1 << 24  # sensor messages buffered with --lockstep (a replay's whole stream)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="zennav-ins", description="zennav ins service: GNSS/INS navigation engine")
     p.add_argument("--params", default=None, help="filter parameter file, human units (default deploy/ins.yaml)")
@@ -93,8 +96,10 @@ def main(argv=None) -> int:
                    bus_rejected=bus.rejected_counts, learning=learn, fetch_start=run.stream_start_of,
                    imu_key=k.imu(args.imu_id), gnss_key=k.gnss(args.gnss_id))
     run.counters = node.counters
+    # lockstep: the ins waits for answers (a fit can take minutes) while the ingest streams on; its samples queue
+    # here without bound instead of holding the ingest's blocking push past zenoh's wait_before_close
     bus.subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
-                  capacity=args.queue, name="sensors")
+                  capacity=LOCKSTEP_QUEUE if args.lockstep else args.queue, name="sensors")
     if args.attitude_alignment:
         tilt_std = math.radians(args.attitude_tilt_std)
         bus.subscribe(k.attitude(), lambda key, msg, recv_ns: node.on_attitude(msg, tilt_std), channel="ring",
