@@ -333,18 +333,19 @@ def learning_over_the_bus(recording: Path, ins_status: dict) -> dict:
     counters = ins_status.get("counters", {})
     return {"sets_published": sets, "answers_by_version": {str(v): n for v, n in sorted(answers.items())},
             "answered": sum(answers.values()), "refused": dict(refused), "ins": model,
-            "engine_rejections": {k: int(v) for k, v in counters.items() if k.startswith("learned_")}}
+            "engine_rejections": {k: int(v) for k, v in counters.items()
+                                  if k.startswith("learned_") and not k.endswith("_fused")}}
 
 
 def _learning_lines(lo: dict) -> list[str]:
     sets = lo["sets_published"]
     ins = lo["ins"]
-    versions = ", ".join(f"v{s['version']} (through {s['samples_seen']})" for s in sets) or "none"
+    versions = ", ".join(f"v{s['version']} through {s['samples_seen']} samples" for s in sets) or "none"
     used = ", ".join(f"v{v}: {n}" for v, n in lo["answers_by_version"].items()) or "none"
     refused = ", ".join(f"{r} {n}" for r, n in lo["refused"].items()) or "none"
     rejected = {k: v for k, v in ins.items() if k.startswith("refused_") or k in ("not_fused", "unanswered",
                                                                                    "unmatched", "mismatched")}
-    return [f"  trainer   {len(sets)} parameter sets published: {versions} samples",
+    return [f"  trainer   {len(sets)} parameter sets published: {versions}",
             f"  predictor {lo['answered']} queries answered (by set version: {used}); refused: {refused}; late "
             f"sets: {ins.get('lockstep_timeouts', 0)}",
             f"  ins       {ins.get('samples', 0)} training samples sent, {ins.get('queries', 0)} queries sent, "
