@@ -37,7 +37,6 @@ from pathlib import Path
 import numpy as np
 import scipy.io
 import yaml
-
 from zennav.attitude.complementary import AdaptiveComplementaryFilter, ComplementaryConfig
 
 REPO = Path(__file__).resolve().parents[1]

@@ -15,7 +15,8 @@ Both peer-to-peer (peers on loopback, gossip) and through a router (`zennav rout
 Every case runs --repeat times (fresh processes each time); the rate printed is the median, with the range; the
 latency percentiles are over the samples of all repetitions.
 
-    .venv/bin/python benchmarks/bus_throughput.py [--duration 600] [--latency-duration 30] [--repeat 3] [--batch 10] [--json out.json]
+    .venv/bin/python benchmarks/bus_throughput.py [--duration 600] [--latency-duration 30] [--repeat 3]
+        [--batch 10] [--json out.json]
 """
 from __future__ import annotations
 

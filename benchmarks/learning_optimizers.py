@@ -26,10 +26,10 @@ Fairness. torch.set_num_threads(1) and single-threaded BLAS (OMP/OPENBLAS/MKL_NU
 loads); all fits run one after another in this process. The clock counts only the training work (including
 set-up such as PSO's initial swarm evaluation), not the per-epoch RMSE evaluation made for the table. Each
 fit stops after --max-epochs epochs or once its clock passes --budget-s seconds, whichever comes first (the
-default cap is high enough that the budget binds for every method): an
-"epoch" costs very different amounts of time per method (20 CG iterations, each evaluation with its own LSE; one LSE + one gradient
-step; one pass of mini-batches; one swarm iteration of 20 LSE solves), so a common time budget, not a common
-epoch count, is what makes the final RMSEs comparable. No early stopping on tolerance. The zennav trainers
+default cap is high enough that the budget binds for every method): an "epoch" costs very different amounts
+of time per method (20 CG iterations, each evaluation with its own LSE; one LSE + one gradient step; one pass
+of mini-batches; one swarm iteration of 20 LSE solves), so a common time budget, not a common epoch count, is
+what makes the final RMSEs comparable. No early stopping on tolerance. The zennav trainers
 run with TrainConfig's defaults (--train-option overrides a field, e.g. cg_projected=false for Jang's
 alternation), stepped through anfis_torch.epoch_stepper, the per-epoch function that train() runs.
 
@@ -57,6 +57,7 @@ this process's CPU time instead (the same thing on an idle machine, as everythin
 """
 from __future__ import annotations
 
+# ruff: noqa: E402  (the thread variables below must be set before numpy and torch load their BLAS)
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -71,10 +72,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from zennav.learn.loop import training_set
 from zennav.datasets.registry import load_dataset
 from zennav.learn import anfis_numpy, anfis_torch
 from zennav.learn.anfis_torch import TorchAnfis, TrainConfig
+from zennav.learn.loop import training_set
 from zennav.nav.learning import OUTPUTS, TARGETS
 
 ZENNAV_METHODS = ("hybrid_cg", "hybrid_gd", "adam", "pso")
@@ -305,8 +306,8 @@ def main() -> None:
           f"last {1 - TRAIN_FRACTION:.0%} validation ({len(x) - n_tr} samples); normalised with the training "
           f"mean/std (y std {names} = {per_output(y_std)} {unit})")
     print(f"{args.rules} rules (k-means, bell MFs) x {x.shape[1]} inputs; seeds {list(range(args.seeds))}; "
-          f"per fit: <= {args.max_epochs} epochs and <= {args.budget_s:g} s ({args.clock} clock) of training; 1 thread; "
-          f"anfis-toolbox lr {args.toolbox_lr:g}; zennav TrainConfig "
+          f"per fit: <= {args.max_epochs} epochs and <= {args.budget_s:g} s ({args.clock} clock) of training; "
+          f"1 thread; anfis-toolbox lr {args.toolbox_lr:g}; zennav TrainConfig "
           + (", ".join(f"{k}={v}" for k, v in options.items()) or "defaults"))
     if args.target_rmse is not None:
         print(f"target training RMSE (normalised): fixed {args.target_rmse:.4f}")

@@ -33,8 +33,8 @@ from zennav.nav.learning import TARGETS, LearnSample
 from zennav.nav.navigator import Navigator
 from zennav.replay import run_replay
 
-HEADER = (f"{'window':>7}{'compensation':>14}{'windows':>9}{'RMS of max m':>14}{'max m':>9}{'vs INS':>9}{'answered':>10}"
-          f"{'wall s':>8}")
+HEADER = (f"{'window':>7}{'compensation':>14}{'windows':>9}{'RMS of max m':>14}{'max m':>9}{'vs INS':>9}"
+          f"{'answered':>10}{'wall s':>8}")
 
 
 def _row(length: float, label: str, drifts: list[float], base: float | None, answered: int, wall: float) -> float:

@@ -147,7 +147,7 @@ def read_mcap(path, keys: list[str] | None = None):
     pats = [re.compile(k) for k in keys] if keys else None
     with open(path, "rb") as f:
         reader = make_reader(f)
-        for schema, channel, message in reader.iter_messages(log_time_order=True):
+        for _schema, channel, message in reader.iter_messages(log_time_order=True):
             key = channel.topic
             if pats and not any(p.search(key) for p in pats):
                 continue

@@ -4,8 +4,8 @@ The GT positions are also the filter's GNSS: with full GNSS the score only says 
 inside outages the withheld GT scores the drift honestly. Skipped, with the reason, when the data folder is absent.
 
 Measured with the loader's defaults (zennav replay ansfl:<flight>, all 61 flights): horizontal RMS with full GNSS
-2-15 cm on every flight; 10 s outage from 50 % of the flight: 1.5-16.3 m maximum drift (median 6.7) on the 50 flights long
-enough. The thresholds below sit about 2x above the figures of the flights used here.
+2-15 cm on every flight; 10 s outage from 50 % of the flight: 1.5-16.3 m maximum drift (median 6.7) on the 50
+flights long enough. The thresholds below sit about 2x above the figures of the flights used here.
 """
 from __future__ import annotations
 

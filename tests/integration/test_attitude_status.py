@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-
 from zennav_harness import Collector, json_lines, wait_until
 
 

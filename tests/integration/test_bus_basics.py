@@ -6,9 +6,7 @@ import math
 import time
 
 import numpy as np
-
 from zennav import messages as M
-
 from zennav_harness import Collector, free_port, json_lines, wait_until
 
 ECHO = str(__import__("pathlib").Path(__file__).with_name("echo_node.py"))
@@ -46,7 +44,7 @@ def _round_trip(cluster, bus_args, n=2000):
         before = len(got.msgs())
         t0 = time.perf_counter_ns()
         pub.put(_aid(n + i))
-        got.wait(lambda c: len(c.msgs()) > before, 5, "paced echo")
+        got.wait(lambda c, before=before: len(c.msgs()) > before, 5, "paced echo")
         rtts.append((time.perf_counter_ns() - t0) / 1e6)
     print(f"\nround trip over {'router' if '--mode' in bus_args else 'peer'}: p50 {np.median(rtts):.3f} ms, "
           f"p99 {np.percentile(rtts, 99):.3f} ms")

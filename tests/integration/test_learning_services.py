@@ -262,11 +262,11 @@ def netns():
 # cut link is noticed in about a second instead of the default 10 s, and (client) a quick connect retry
 LEASE = "transport: { link: { tx: { lease: 1000, keep_alive: 4 } } },"
 ROUTER_CONF = """{ mode: "router", listen: { endpoints: ["tcp/127.0.0.1:7447"] }, connect: { endpoints: [] },
-  scouting: { multicast: { enabled: false }, gossip: { enabled: true, multihop: false } }, %s }""" % LEASE
+  scouting: { multicast: { enabled: false }, gossip: { enabled: true, multihop: false } }, """ + LEASE + " }"
 CLIENT_CONF = """{ mode: "client",
   connect: { endpoints: ["tcp/127.0.0.1:7447"], timeout_ms: { client: -1 }, exit_on_failure: { client: false },
              retry: { period_init_ms: 200, period_max_ms: 500, period_increase_factor: 1.5 } },
-  scouting: { multicast: { enabled: false }, gossip: { enabled: false } }, %s }""" % LEASE
+  scouting: { multicast: { enabled: false }, gossip: { enabled: false } }, """ + LEASE + " }"
 
 
 def test_remote_trainer_from_other_netns_survives_link_cut(cluster, netns, tmp_path):
@@ -290,7 +290,8 @@ def test_remote_trainer_from_other_netns_survives_link_cut(cluster, netns, tmp_p
                                "--zenoh-config", client_conf, "--connect", f"tcp/{edge_ip}:{p_lan}",
                                "--vehicle", cluster.vehicle, "--status-period", "0.2", "--min-samples", "200",
                                "--retrain-samples", "200", "--max-epochs", "5",
-                               "--n-rules", "4", "--link-poll", "0.2", "--targets", "drift"], tmp_path / "trainer.log", env)
+                               "--n-rules", "4", "--link-poll", "0.2", "--targets", "drift"],
+                   tmp_path / "trainer.log", env)
     cluster.procs.append(trainer)
     inside.append(trainer)
     cluster.wait_alive(["predictor", "trainer"], 60, trainer)

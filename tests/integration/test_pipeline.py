@@ -7,7 +7,6 @@ import re
 
 import msgpack
 import numpy as np
-
 from zennav import messages as M
 from zennav_harness import Collector, wait_until
 

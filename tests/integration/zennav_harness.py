@@ -1,4 +1,5 @@
-"""Integration harness (helpers imported by the tests; fixtures in conftest.py): real service processes over real Zenoh on loopback.
+"""Integration harness (helpers imported by the tests; fixtures in conftest.py): real service processes over real
+Zenoh on loopback.
 
 Each test gets a rendezvous: the test's own zenoh peer session listening on a free loopback port with
 multicast scouting off; every service process connects to it (explicit endpoint) and finds the others by

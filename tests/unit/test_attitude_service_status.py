@@ -9,11 +9,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from zennav import messages as M
 from zennav.attitude.complementary import AdaptiveComplementaryFilter
-from zennav.params import load_attitude_params as load_config
 from zennav.nodes.attitude import AttitudeNode, omega_in_n_of
+from zennav.params import load_attitude_params as load_config
 
 K = M.Keys("car")
 log = logging.getLogger("test")
@@ -186,7 +185,8 @@ def _status(**extra):
 GOOD_AL = {"state": "fine", "method": "in_motion", "heading_std_rad": 0.02, "times_ns": {"coarse": 1, "fine": 3},
            "tilt_source": "levelling", "gyrocompass": ""}
 GOOD_R = {"gnss_pos": {"R_diag": [1.0, 1.0, 4.0], "ratio": [1.5, 1.5, 1.0], "branch": "fading", "k": 30,
-                       "inflate": 0, "fading": 10}, "gnss_vel": {"R_diag": [0.01] * 3, "ratio": None, "branch": "fixed"}}
+                       "inflate": 0, "fading": 10},
+          "gnss_vel": {"R_diag": [0.01] * 3, "ratio": None, "branch": "fixed"}}
 
 
 @pytest.mark.parametrize("mutate, code", [
@@ -256,7 +256,8 @@ def test_monitor_state_and_table_show_alignment_r_and_attitude():
     st.on_sample(K.attitude(), M.encode(att), 0)
     snap = st.snapshot()
     al = snap["nav"]["alignment"]
-    assert al["state"] == "fine" and al["times_s"] == {"coarse": 0.0, "fine": 0.0}  # [s] since coarse began (rounded to ms)
+    # [s] since coarse began (rounded to ms)
+    assert al["state"] == "fine" and al["times_s"] == {"coarse": 0.0, "fine": 0.0}
     assert al["heading_std_deg"] == pytest.approx(np.degrees(0.02), abs=1e-4)
     assert snap["nav"]["measurement_noise"] == GOOD_R and snap["nav"]["adaptive_r"] is True
     assert snap["attitude"]["gyro_bias_dph"][0] == pytest.approx(2.0626, rel=1e-4)
@@ -284,5 +285,6 @@ def test_monitor_keeps_a_second_ins_apart():
     snap = st.snapshot()
     assert snap["nav"]["gnss_state"] == "valid" and snap["nav"]["alignment"]["state"] == "fine"
     assert snap["navs"]["plain"]["gnss_state"] == "outage" and snap["navs"]["plain"]["imu_count"] == 7
-    assert set(snap["aid"]) == {"plain/gnss_pos"} and sum(sum(k["rejected"].values()) for k in snap["keys"].values()) == 0
+    assert set(snap["aid"]) == {"plain/gnss_pos"}
+    assert sum(sum(k["rejected"].values()) for k in snap["keys"].values()) == 0
     assert "NAV/plain  gnss outage  imu 7" in format_table(snap)

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from zennav.datasets import kfgins
 from zennav.datasets.errors import DataError
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
@@ -105,7 +104,8 @@ def test_gnss_13_columns_in_kfgins_loader_order(tmp_path):
 def write_demo(folder, imu_rows=None, gnss_rows=None, **overrides) -> Path:
     """A KF-GINS demo-like configuration (the repo's dataset/kf-gins.yaml values) with small data files."""
     imu_rows = imu_rows or [f"{SOW0 + 0.005 * k:.3f} 1e-5 -2e-5 3e-5 1e-3 2e-3 -0.049" for k in range(-2, 10)]
-    gnss_rows = gnss_rows or [f"{SOW0 + s:.3f} 30.4447858 114.4718661 21.09 0.010 0.009 0.019" for s in (0.0, 0.02, 0.04)]
+    gnss_rows = gnss_rows or [f"{SOW0 + s:.3f} 30.4447858 114.4718661 21.09 0.010 0.009 0.019"
+                              for s in (0.0, 0.02, 0.04)]
     (folder / "imu.txt").write_text("\n".join(imu_rows) + "\n")
     (folder / "gnss.txt").write_text("\n".join(gnss_rows) + "\n")
     config = {
@@ -134,7 +134,8 @@ def test_config_units_converted_to_si(tmp_path, monkeypatch):
     assert noise.gyro_bias_std == pytest.approx(0.027 * math.pi / 180 / 3600, rel=1e-14)  # deg/h -> rad/s
     assert noise.accel_bias_std == pytest.approx(15e-5, rel=1e-14)  # mGal -> m/s^2
     assert noise.gyro_bias_tau == noise.accel_bias_tau == 4 * 3600.0
-    np.testing.assert_allclose(init.llh, [math.radians(30.4447873701), math.radians(114.4718632047), 20.899], rtol=1e-15)
+    np.testing.assert_allclose(init.llh, [math.radians(30.4447873701), math.radians(114.4718632047), 20.899],
+                               rtol=1e-15)
     np.testing.assert_allclose(init.euler, np.deg2rad([0.85421502, -2.03480295, 185.70235133]), rtol=1e-15)
     np.testing.assert_allclose(init.std_euler, np.deg2rad([0.003, 0.003, 0.023]), rtol=1e-15)
     np.testing.assert_allclose(init.gyro_bias, [math.radians(36) / 3600, 0, 0], rtol=1e-15)
@@ -175,7 +176,8 @@ def test_write_dataset_then_load_config_reproduces_the_dataset(tmp_path):
     np.testing.assert_array_equal(back.gnss.t_ns, ds.gnss.t_ns - shift)
     a, b = back.initial, ds.initial
     assert a.t_ns == b.t_ns - shift == back.config.start_t_ns
-    for name in ("llh", "v_n", "euler", "std_pos_ned", "std_v_n", "std_euler", "gyro_bias", "accel_bias", "std_gyro_bias"):
+    for name in ("llh", "v_n", "euler", "std_pos_ned", "std_v_n", "std_euler", "gyro_bias", "accel_bias",
+                 "std_gyro_bias"):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-14, atol=1e-15, err_msg=name)
     # no initbastd written: KF-GINS falls back to abstd
     np.testing.assert_allclose(a.std_accel_bias, np.full(3, ds.config.imu_noise.accel_bias_std), rtol=1e-14)
@@ -242,7 +244,8 @@ def test_bad_gnss_and_velocity_files(tmp_path):
     (tmp_path / "g.txt").write_text("\n".join(rows) + "\n")
     vel = [f"{SOW0 + s} 1.0 2.0 0.0 0.05 0.05 0.1" for s in range(4)]
     (tmp_path / "v.txt").write_text("\n".join(with_line(vel, 2, f"{SOW0 + 1.5} 1.0 2.0 0.0 0.05 0.05 0.1")) + "\n")
-    with pytest.raises(DataError, match=r"v\.txt:2: time 456301\.500000000 s does not match the GNSS epoch 456301\.000000000 s"):
+    with pytest.raises(DataError,
+                       match=r"v\.txt:2: time 456301\.500000000 s does not match the GNSS epoch 456301\.000000000 s"):
         kfgins.load_gnss(tmp_path / "g.txt", tmp_path / "v.txt")
     (tmp_path / "v.txt").write_text("\n".join(vel[:3]) + "\n")
     with pytest.raises(DataError, match=r"v\.txt: 3 velocity rows for 4 GNSS epochs"):

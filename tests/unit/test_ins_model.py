@@ -4,12 +4,11 @@ import math
 
 import numpy as np
 import pytest
-
 from zennav.nav import earth
 from zennav.nav.aiding import antenna_velocity, body_velocity_model, position_model, velocity_model
 from zennav.nav.eskf import ErrorStateKF, discretize, error_model, process_noise_psd
 from zennav.nav.navigator import Navigator
-from zennav.nav.rotation import euler_to_dcm, euler_to_quat, rotvec_to_quat, quat_multiply
+from zennav.nav.rotation import euler_to_dcm, euler_to_quat, quat_multiply, rotvec_to_quat
 from zennav.nav.strapdown import NavState, mechanize
 from zennav.nav.types import ImuNoise, InitialState, NavConfig
 

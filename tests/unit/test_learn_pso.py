@@ -1,7 +1,6 @@
 """Particle swarm optimisation."""
 import numpy as np
 import pytest
-
 from zennav.learn.pso import PSOConfig, Swarm, pso_minimize
 
 

@@ -67,7 +67,8 @@ def test_learn_query_and_correction_messages_validate():
     c = M.correction_msg(back, np.array([1.0, 2.0]), (0.1, 0.2), "anfis-drift", 3)
     c.update(src="p", seq=0, pub_ns=0)
     back, reason = M.Validator().check(K.learn_correction(), M.encode(c))
-    assert reason == "" and (back["query_src"], back["query_seq"], back["kind"], back["t_ns"]) == ("ins.x", 7, "drift", 10)
+    assert reason == ""
+    assert (back["query_src"], back["query_seq"], back["kind"], back["t_ns"]) == ("ins.x", 7, "drift", 10)
     s = M.learn_sample_msg(LearnSample(10, "drift", np.zeros(N_IN), np.array([1.0, -1.0])))
     s.update(src="i", seq=0, pub_ns=0)
     assert M.Validator().check(K.learn_samples(), M.encode(s))[1] == ""

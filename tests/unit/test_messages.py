@@ -10,7 +10,6 @@ from types import SimpleNamespace
 import msgpack
 import numpy as np
 import pytest
-
 from zennav import messages as M
 from zennav.nav.types import InitialState, NavConfig
 
@@ -224,8 +223,8 @@ def _stream_messages(ds, outages=()):
 def test_ins_node_over_messages_equals_replay(shuffle):
     """ingest's event order + codec + validator + cseq merge + InsNode, without a network, reproduce
     run_replay bit for bit, also when messages arrive out of order (within a window)."""
-    from zennav.replay import run_replay
     from zennav.nodes.ins import InsNode
+    from zennav.replay import run_replay
     from zennav.sim.scenarios import make_dataset
 
     ds = make_dataset("car", duration_s=40.0, seed=4)

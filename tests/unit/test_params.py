@@ -7,10 +7,17 @@ import math
 
 import numpy as np
 import pytest
-
 from zennav.nav.types import FixType, ImuNoise, NavConfig
-from zennav.params import (FILTER, INS_PARAMS, SENSOR_FIELDS, ParamError, check_complete, load_filter_params,
-                           nav_config, sensor_map)
+from zennav.params import (
+    FILTER,
+    INS_PARAMS,
+    SENSOR_FIELDS,
+    ParamError,
+    check_complete,
+    load_filter_params,
+    nav_config,
+    sensor_map,
+)
 
 
 def test_shipped_file_is_navconfig_defaults_and_complete():
@@ -92,7 +99,6 @@ def test_replay_reads_the_same_file(tmp_path):
     """zennav replay --params FILE runs the filter of FILE (here a tighter GNSS gate changes the solution);
     without --params it is deploy/ins.yaml, i.e. the loader's NavConfig."""
     from click.testing import CliRunner
-
     from zennav.cli import main
 
     tight = tmp_path / "tight.yaml"

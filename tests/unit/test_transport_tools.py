@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from zennav import messages as M
 
 REPO = Path(__file__).resolve().parents[2]

@@ -47,7 +47,6 @@ from dataclasses import dataclass, fields
 from itertools import repeat
 
 import numpy as np
-
 from zennav.nav import alignment
 from zennav.nav.earth import G0
 from zennav.nav.rotation import euler_to_quat

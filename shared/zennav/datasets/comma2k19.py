@@ -19,7 +19,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-
 from zennav.datasets.errors import DataError, existing_file
 from zennav.nav import earth
 from zennav.nav.rotation import dcm_to_euler, quat_to_dcm, wrap_angle
@@ -40,7 +39,8 @@ def _npy(path: Path, tail: tuple) -> np.ndarray:
     except (ValueError, OSError) as exc:
         raise DataError(path, f"not a numeric .npy file: {exc}") from None
     if array.shape[1:] != tail or len(array) < 2 or not np.issubdtype(array.dtype, np.number):
-        raise DataError(path, f"array of shape {array.shape} ({array.dtype}), expected (N, {', '.join(map(str, tail))})")
+        raise DataError(path, f"array of shape {array.shape} ({array.dtype}), "
+                              f"expected (N, {', '.join(map(str, tail))})")
     bad = np.flatnonzero(~np.isfinite(array.reshape(len(array), -1)).all(axis=1))
     if bad.size:
         raise DataError(path, f"row {bad[0]} is NaN or infinite")
@@ -126,7 +126,8 @@ def load_truth(folder, t_ns: np.ndarray) -> Truth:
     v_e = _npy(folder / "frame_velocities.npy", (3,))
     q_e_cam = _npy(folder / "frame_orientations.npy", (4,))
     if not len(r_e) == len(v_e) == len(q_e_cam) == len(t_ns):
-        raise DataError(folder, "frame_positions, frame_velocities, frame_orientations and frame_times differ in length")
+        raise DataError(folder, "frame_positions, frame_velocities, frame_orientations and frame_times "
+                                "differ in length")
     llh = earth.ecef_to_llh(r_e)
     v_n = np.empty_like(v_e)
     euler = np.empty_like(v_e)

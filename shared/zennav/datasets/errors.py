@@ -113,7 +113,8 @@ def _find_bad_line(path, lines, first_line, columns, delimiter, comments, text_c
                 return DataError(path, _column_message(len(tokens), columns), number)
             expected = len(tokens)
         elif len(tokens) != expected:
-            return DataError(path, f"line has {len(tokens)} columns, expected {expected} like the first data line", number)
+            return DataError(path, f"line has {len(tokens)} columns, expected {expected} like the first data line",
+                             number)
         for col, tok in enumerate(tokens[text_cols:], start=text_cols + 1):
             try:
                 float(tok)

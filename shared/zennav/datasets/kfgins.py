@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-
 from zennav.datasets.errors import DataError, read_table, read_text
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
@@ -90,7 +89,8 @@ def load_gnss(path, vel_path=None, fix: FixType = FixType.SINGLE) -> GnssData:
             raise DataError(vel_path, f"velocity given twice: {Path(path).name} already has 13 columns")
         v_n, std_v_n = _load_velocity(vel_path, t_ns)
     m = len(t_ns)
-    return GnssData(t_ns, llh, std_ned, v_n, std_v_n, np.full(m, int(fix), dtype=np.int64), np.full(m, -1, dtype=np.int64))
+    return GnssData(t_ns, llh, std_ned, v_n, std_v_n, np.full(m, int(fix), dtype=np.int64),
+                    np.full(m, -1, dtype=np.int64))
 
 
 def _load_velocity(path, gnss_t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -184,7 +184,8 @@ def write_dataset(dataset: Dataset, folder, name: str | None = None) -> Path:
     if gnss.v_n is not None:
         files["gnssvelpath"] = f"{name}_gnssvel.txt"
     write_imu(folder / files["imupath"], imu, week)
-    write_gnss(folder / files["gnsspath"], gnss, week, folder / files["gnssvelpath"] if "gnssvelpath" in files else None)
+    vel_path = folder / files["gnssvelpath"] if "gnssvelpath" in files else None
+    write_gnss(folder / files["gnsspath"], gnss, week, vel_path)
 
     def sow(t_ns: int) -> float:
         return (t_ns - week * WEEK_NS) / NS

@@ -84,7 +84,8 @@ def _strong_wolfe(phi, f0, d0, alpha1, c1, c2, max_evals, alpha_max, f_slack, x_
     The zoom gives up once its interval is narrower than x_rtol times the step (a kink of f, where
     |phi'| stays large on both sides of the minimiser, would otherwise draw all max_evals into it).
     Returns (alpha, payload, n_evals, strong): the strong Wolfe step (strong True); else, once max_evals
-    are spent or the zoom gave up, the trial step of lowest f among those meeting the Armijo condition (strong False); else alpha None (failure).
+    are spent or the zoom gave up, the trial step of lowest f among those meeting the Armijo condition
+    (strong False); else alpha None (failure).
     """
     evals = 0
     f_armijo = f0 + f_slack

@@ -12,7 +12,6 @@ Body velocity v_b = C_bn v_n: C_bn_hat v_hat = C_bn (I + [phi x]) (v_n + dv) ~ v
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from . import earth

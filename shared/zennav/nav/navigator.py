@@ -28,8 +28,19 @@ from scipy.stats import chi2
 from . import earth
 from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, GnssPosition, Measurement, build_sources
 from .alignment import Alignment
-from .eskf import ATT, BA, BG, N_STATES, POS, VEL, ErrorStateKF, discretize, error_model, initial_covariance, \
-    process_noise_psd
+from .eskf import (
+    ATT,
+    BA,
+    BG,
+    N_STATES,
+    POS,
+    VEL,
+    ErrorStateKF,
+    discretize,
+    error_model,
+    initial_covariance,
+    process_noise_psd,
+)
 from .learning import LearningTap, LearnQuery, LearnSample
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_to_quat
 from .strapdown import NavState, mechanize
