@@ -146,6 +146,7 @@ def load_truth(folder, t_ns: np.ndarray) -> Truth:
 
 def _interp_truth(truth: Truth, t_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Truth (llh, v_n, euler) linearly interpolated at t_ns (yaw unwrapped first)."""
+    assert truth.euler is not None  # load_truth always gives the attitude
     euler = truth.euler.copy()
     euler[:, 2] = np.unwrap(euler[:, 2])
 

@@ -17,7 +17,9 @@ for the increments, so a run from converted files matches a run from the native 
 from __future__ import annotations
 
 import math
+from functools import partial
 from pathlib import Path
+from typing import Literal, overload
 
 import numpy as np
 import yaml
@@ -156,7 +158,7 @@ def write_gnss(path, gnss: GnssData, week: int = 0, vel_path=None) -> None:
     deg = np.column_stack([np.rad2deg(gnss.llh[:, :2]), gnss.llh[:, 2], gnss.std_ned])
     _write_rows(path, gnss.t_ns, week, deg, "%.13f %.13f %.9f %.9f %.9f %.9f")
     if vel_path is not None:
-        if gnss.v_n is None:
+        if gnss.v_n is None or gnss.std_v_n is None:
             raise ValueError("write_gnss: vel_path given but the GNSS data has no velocity")
         _write_rows(vel_path, gnss.t_ns, week, np.hstack([gnss.v_n, gnss.std_v_n]), " ".join(["%.9f"] * 6))
 
@@ -194,7 +196,18 @@ def write_dataset(dataset: Dataset, folder, name: str | None = None) -> Path:
         return [float(x) * scale for x in values]
 
     dt_s = np.median(np.diff(imu.t_ns)) / NS
-    config = {
+    imunoise: dict[str, float | list[float]] = {
+        "arw": [noise.arw * SQRT_H / D2R] * 3,
+        "vrw": [noise.vrw * SQRT_H] * 3,
+        "gbstd": [noise.gyro_bias_std / DEG_PER_H] * 3,
+        "abstd": [noise.accel_bias_std / MGAL] * 3,
+        "gsstd": [0.0] * 3,
+        "asstd": [0.0] * 3,
+        "corrtime": noise.gyro_bias_tau / 3600.0,
+    }
+    if noise.accel_bias_tau != noise.gyro_bias_tau:
+        imunoise["acccorrtime"] = noise.accel_bias_tau / 3600.0
+    config: dict[str, object] = {
         **files,
         "outputpath": ".",
         "imudatalen": 7,
@@ -211,29 +224,19 @@ def write_dataset(dataset: Dataset, folder, name: str | None = None) -> Path:
         "initposstd": vec(init.std_pos_ned),
         "initvelstd": vec(init.std_v_n),
         "initattstd": vec(np.rad2deg(init.std_euler)),
-        "imunoise": {
-            "arw": [noise.arw * SQRT_H / D2R] * 3,
-            "vrw": [noise.vrw * SQRT_H] * 3,
-            "gbstd": [noise.gyro_bias_std / DEG_PER_H] * 3,
-            "abstd": [noise.accel_bias_std / MGAL] * 3,
-            "gsstd": [0.0] * 3,
-            "asstd": [0.0] * 3,
-            "corrtime": noise.gyro_bias_tau / 3600.0,
-        },
+        "imunoise": imunoise,
         "antlever": vec(cfg.lever_arm_b),
     }
-    if noise.accel_bias_tau != noise.gyro_bias_tau:
-        config["imunoise"]["acccorrtime"] = noise.accel_bias_tau / 3600.0
     if init.std_gyro_bias is not None:
         config["initbgstd"] = vec(init.std_gyro_bias, 1.0 / DEG_PER_H)
     if init.std_accel_bias is not None:
         config["initbastd"] = vec(init.std_accel_bias, 1.0 / MGAL)
     truth = dataset.truth
     if truth is not None:
-        config["truthpath"] = f"{name}_truth.nav"
+        truth_file = config["truthpath"] = f"{name}_truth.nav"
         zeros = np.zeros((len(truth.t_ns), 3))
         write_nav(
-            folder / config["truthpath"],
+            folder / truth_file,
             week,
             truth.t_ns,
             truth.llh,
@@ -294,7 +297,12 @@ class _Config:
             value = value[key]
         return value
 
-    def number(self, *keys, required: bool = True) -> float | None:
+    @overload
+    def number(self, *keys: str, required: Literal[True] = ...) -> float: ...
+    @overload
+    def number(self, *keys: str, required: bool) -> float | None: ...
+
+    def number(self, *keys: str, required: bool = True) -> float | None:
         value = self.get(*keys, required=required)
         if value is None and not required:
             return None
@@ -302,7 +310,12 @@ class _Config:
             raise self.error(keys, f"expected a finite number, got {value!r}")
         return float(value)
 
-    def vector(self, *keys, required: bool = True, positive: bool = False) -> np.ndarray | None:
+    @overload
+    def vector(self, *keys: str, required: Literal[True] = ..., positive: bool = ...) -> np.ndarray: ...
+    @overload
+    def vector(self, *keys: str, required: bool, positive: bool = ...) -> np.ndarray | None: ...
+
+    def vector(self, *keys: str, required: bool = True, positive: bool = False) -> np.ndarray | None:
         value = self.get(*keys, required=required)
         if value is None and not required:
             return None
@@ -323,6 +336,11 @@ class _Config:
         if np.ptp(vec) > 0:
             self.notes.append(f"{'.'.join(keys)} differs per axis; zennav uses the largest, {vec.max()}")
         return float(vec.max())
+
+    @overload
+    def file(self, key: str, required: Literal[True] = ...) -> Path: ...
+    @overload
+    def file(self, key: str, required: bool) -> Path | None: ...
 
     def file(self, key: str, required: bool = True) -> Path | None:
         """A file path; relative paths as KF-GINS (current directory), else relative to the YAML's folder."""
@@ -379,7 +397,8 @@ def load_config(yaml_path) -> Dataset:
     bg_std = cfg.vector("imunoise", "gbstd") if bg_std is None else bg_std
     ba_std = cfg.vector("imunoise", "abstd") if ba_std is None else ba_std
     pos = cfg.vector("initpos")
-    initial_state = dict(
+    initial_at = partial(  # the initial state, at the first IMU sample of the window
+        InitialState,
         llh=np.array([pos[0] * D2R, pos[1] * D2R, pos[2]]),
         v_n=cfg.vector("initvel"),
         euler=cfg.vector("initatt") * D2R,
@@ -414,7 +433,7 @@ def load_config(yaml_path) -> Dataset:
         raise cfg.error(("starttime",), "fewer than two IMU samples between starttime and endtime")
     imu = imu.slice(keep)
     gnss = gnss.slice((gnss.t_ns > start_ns) & (gnss.t_ns <= end_ns))
-    initial = InitialState(t_ns=int(imu.t_ns[0]), **initial_state)
+    initial = initial_at(t_ns=int(imu.t_ns[0]))
     config = NavConfig(imu_noise=noise, lever_arm_b=lever_arm_b, start_t_ns=initial.t_ns, end_t_ns=int(imu.t_ns[-1]))
     truth = None
     if truth_path is not None:

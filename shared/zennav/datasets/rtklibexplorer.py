@@ -85,18 +85,20 @@ def load_gnss(pos_path) -> GnssData:
     """RTKLIB .pos (GPST date/time, lat/lon/h, Q, ns, sdn/sde/sdu, ..., vn ve vu, sdvn sdve sdvu, ...) -> GnssData."""
     table = read_table(pos_path, 24, comments="%", text_cols=2)
     table.require_finite()
+    text = table.text
+    assert text is not None  # read with text_cols=2
     try:
-        stamps = np.char.add(np.char.add(np.char.replace(table.text[:, 0], "/", "-"), "T"), table.text[:, 1])
+        stamps = np.char.add(np.char.add(np.char.replace(text[:, 0], "/", "-"), "T"), text[:, 1])
         t_ns = (stamps.astype("datetime64[ns]") - np.datetime64("1980-01-06T00:00:00", "ns")).astype(np.int64)
     except ValueError:
         bad = next(k for k, s in enumerate(stamps) if not _is_time(s))
-        raise table.error(bad, f"cannot parse date/time {' '.join(table.text[bad])!r}") from None
+        raise table.error(bad, f"cannot parse date/time {' '.join(text[bad])!r}") from None
     table.require_increasing(t_ns)
     d = table.data
     q = d[:, 3].astype(int)
-    bad = np.flatnonzero(~np.isin(q, list(FIX_OF_Q)))
-    if bad.size:
-        raise table.error(int(bad[0]), f"solution quality Q={d[bad[0], 3]:g} is not 1..5")
+    bad_q = np.flatnonzero(~np.isin(q, list(FIX_OF_Q)))
+    if bad_q.size:
+        raise table.error(int(bad_q[0]), f"solution quality Q={d[bad_q[0], 3]:g} is not 1..5")
     return GnssData(
         t_ns=t_ns,
         llh=np.column_stack([np.deg2rad(d[:, 0]), np.deg2rad(d[:, 1]), d[:, 2]]),
@@ -144,7 +146,9 @@ def _imu_noise() -> ImuNoise:
 
 def _initial_state(imu: ImuData, gnss: GnssData, pos_path: Path) -> tuple[InitialState, dict]:
     """Initial state at the first IMU sample after the first GNSS epoch faster than START_SPEED_MPS."""
-    speed = np.hypot(gnss.v_n[:, 0], gnss.v_n[:, 1])
+    v_n_gnss = gnss.v_n
+    assert v_n_gnss is not None  # load_gnss always reads the velocity
+    speed = np.hypot(v_n_gnss[:, 0], v_n_gnss[:, 1])
     moving = np.flatnonzero(speed > START_SPEED_MPS)
     if moving.size == 0:
         raise DataError(pos_path, f"the GNSS speed never exceeds {START_SPEED_MPS} m/s")
@@ -163,7 +167,7 @@ def _initial_state(imu: ImuData, gnss: GnssData, pos_path: Path) -> tuple[Initia
     def at_t0(values):
         return np.array([np.interp(t0, gnss.t_ns, values[:, i]) for i in range(3)])
 
-    v_n = at_t0(gnss.v_n)
+    v_n = at_t0(v_n_gnss)
     euler = np.array([roll, pitch, math.atan2(v_n[1], v_n[0])])  # yaw = GNSS course (source: yaw_align)
     llh_antenna = at_t0(gnss.llh)  # the epoch's antenna position carried the <= 10 ms to t0
     lever_n = euler_to_dcm(euler) @ LEVER_ARM_B
@@ -195,6 +199,7 @@ def load(folder, prefilter: str = "zero-phase") -> Dataset:
     imu = load_imu(_one(folder, "imu_*.csv"), prefilter)
     pos_path = _one(folder, "*.pos")
     gnss = load_gnss(pos_path)
+    assert gnss.v_n is not None  # load_gnss always reads the velocity
     fixed = gnss.fix == int(FixType.RTK_FIXED)
     truth = Truth(
         t_ns=gnss.t_ns[fixed],

@@ -121,14 +121,14 @@ def kmeans(x: np.ndarray, k: int, *, seed: int = 0, iters: int = 100) -> tuple[n
     if not 1 <= k <= n:
         raise ValueError(f"need 1 <= k <= N, got k={k}, N={n}")
     rng = np.random.default_rng(seed)
-    centres = [x[rng.integers(n)]]
-    d2 = ((x - centres[0]) ** 2).sum(axis=1)
+    picked = [x[rng.integers(n)]]  # k-means++ seeding
+    d2 = ((x - picked[0]) ** 2).sum(axis=1)
     for _ in range(1, k):
         total = d2.sum()
         i = rng.choice(n, p=d2 / total) if total > 0 else rng.integers(n)
-        centres.append(x[i])
+        picked.append(x[i])
         d2 = np.minimum(d2, ((x - x[i]) ** 2).sum(axis=1))
-    centres = np.array(centres)
+    centres = np.array(picked)
     labels = np.full(n, -1)
     for _ in range(iters):
         dist = (x**2).sum(1)[:, None] - 2.0 * x @ centres.T + (centres**2).sum(1)[None, :]

@@ -206,7 +206,7 @@ def fr_cg(
     n_fev = 1
     gg = float(g @ g)
     d = -g
-    history = [dict(k=0, f=f, grad_norm=math.sqrt(gg), alpha=0.0, beta=0.0, restart=None, n_fev=1)]
+    history: list[dict] = [dict(k=0, f=f, grad_norm=math.sqrt(gg), alpha=0.0, beta=0.0, restart=None, n_fev=1)]
     since_restart = 0
     # (alpha, g.d) of the last accepted step, for the initial-step guess alpha * g.d / g_k.d_k (N-W eq. 3.60)
     prev_step = (1.0, -float(first_decrease)) if first_decrease and first_decrease > 0.0 else None

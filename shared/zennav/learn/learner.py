@@ -49,17 +49,22 @@ class ElmanOnline:
 
     def __init__(self, target: str, settings: LearnSettings):
         self.target, self.s = target, settings
+        # LearnSettings.__post_init__ resolves window and min_samples (None: the model's default)
+        assert settings.window is not None and settings.min_samples is not None
+        self.window, self.min_samples = settings.window, settings.min_samples
         self.net: Elman | None = None
         self._first: list[tuple[int, np.ndarray, np.ndarray]] = []
-        self._residuals: deque = deque(maxlen=settings.window)  # of the frozen copy
-        self._residual_t: deque = deque(maxlen=settings.window)  # their times [ns]
+        self._residuals: deque = deque(maxlen=self.window)  # of the frozen copy
+        self._residual_t: deque = deque(maxlen=self.window)  # their times [ns]
         self.free_run_ns = int(settings.free_run_s * 1e9)
         self._frozen: tuple[int, dict, dict] | None = None  # (start t_ns, arrays and normalisation of the copy)
-        self._x_min = self._x_max = None  # range of the learned features
+        self._x_min: np.ndarray | None = None  # range of the learned features
+        self._x_max: np.ndarray | None = None
         self.learned = 0
 
     def _learn(self, t_ns: int, x: np.ndarray, y: np.ndarray) -> None:
         net = self.net
+        assert net is not None  # add() learns only once the network is made
         if net.ready:
             net.predict(x)  # the one-step answer (advances the context the window stores)
             if self._frozen is None or t_ns - self._frozen[0] >= self.free_run_ns:
@@ -70,7 +75,7 @@ class ElmanOnline:
             self._residual_t.append(t_ns)
         net.learn(x, y)
         self.learned += 1
-        if self.learned % self.s.min_samples == 0:  # the window's samples back in physical units
+        if self.learned % self.min_samples == 0:  # the window's samples back in physical units
             net.renormalize(anfis_numpy.fit_normalization(net.win_x * net.x_std + net.x_mean,
                                                           net.win_y * net.y_std + net.y_mean))
         self._x_min = x.copy() if self._x_min is None else np.minimum(self._x_min, x)
@@ -82,11 +87,11 @@ class ElmanOnline:
             self._learn(t_ns, x, y)
             return
         self._first.append((t_ns, x, y))
-        if len(self._first) == self.s.min_samples:
+        if len(self._first) == self.min_samples:
             xs, ys = (np.array(v) for v in list(zip(*self._first))[1:])
             s = self.s
-            self.net = Elman(len(FEATURES[self.target]), s.n_hidden, len(OUTPUTS[self.target]), window=s.window,
-                             min_samples=s.min_samples, threshold=s.threshold,
+            self.net = Elman(len(FEATURES[self.target]), s.n_hidden, len(OUTPUTS[self.target]), window=self.window,
+                             min_samples=self.min_samples, threshold=s.threshold,
                              norm=anfis_numpy.fit_normalization(xs, ys), seed=s.seed)
             self.net.set_aligned()  # samples only come from a converged filter
             for ti, xi, yi in self._first:
@@ -98,7 +103,9 @@ class ElmanOnline:
         return self.net is not None and self.net.ready and len(self._residuals) >= 10
 
     def norm(self) -> dict[str, np.ndarray]:
-        """The network's normalisation plus the range of the learned features (x_min, x_max)."""
+        """The network's normalisation plus the range of the learned features (x_min, x_max); once ready."""
+        # ready: the network is made and has learned samples, so the range is set
+        assert self.net is not None and self._x_min is not None and self._x_max is not None
         return {**self.net.norm(), "x_min": self._x_min, "x_max": self._x_max}
 
     def std(self) -> np.ndarray:
@@ -117,13 +124,16 @@ class Learner:
             raise ValueError(f"target must be one of {TARGETS}")
         self.target, self.s, self.device = target, settings, device
         self.name = name or f"{settings.model}-{target}"
+        # LearnSettings.__post_init__ resolves window and min_samples (None: the model's default)
+        assert settings.window is not None and settings.min_samples is not None
+        self.window, self.min_samples = settings.window, settings.min_samples
         self.lock = threading.Lock()
         self.received = 0  # samples added (the count n of the newest)
         self.through = 0  # samples consumed: the last fit point
         self.done = 0  # the last fit point whose fit is over (its set, if any, made)
         self._pending: deque = deque()  # (t_ns, x, y) added, not yet consumed
         self._requests: set[int] = set()
-        self._rows: deque = deque(maxlen=settings.window)  # anfis: the newest consumed samples
+        self._rows: deque = deque(maxlen=self.window)  # anfis: the newest consumed samples
         self.elman = ElmanOnline(target, settings) if settings.model == "elman" else None
         self._last_t_ns = 0
         self.counts: Counter[str] = Counter()
@@ -141,7 +151,7 @@ class Learner:
         """A query needs a set trained through the first n samples (counted 'behind' when the last fit point
         is already past n, 'early' below min_samples: no set can be made for it)."""
         with self.lock:
-            if n < self.s.min_samples:
+            if n < self.min_samples:
                 self.counts["requests_early"] += 1
             elif n < self.through:
                 self.counts["requests_behind"] += 1
@@ -150,7 +160,7 @@ class Learner:
 
     # ------------------------------------------------------------------ schedule
     def _next_scheduled(self) -> int:
-        m, r = self.s.min_samples, self.s.retrain_samples
+        m, r = self.min_samples, self.s.retrain_samples
         return m if self.through < m else m + (-(-(self.through + 1 - m) // r)) * r
 
     def due(self) -> int | None:
@@ -167,7 +177,7 @@ class Learner:
         t = self.target
         with self.lock:
             c = {f"received_{t}": self.received, f"through_{t}": self.done,
-                 f"set_through_{t}": int(self.last.get("samples_seen", 0)), f"min_samples_{t}": self.s.min_samples}
+                 f"set_through_{t}": int(self.last.get("samples_seen", 0)), f"min_samples_{t}": self.min_samples}
             c.update({f"{k}_{t}": v for k, v in self.counts.items()})
         return c
 
@@ -203,10 +213,12 @@ class Learner:
 
     def _elman_set(self, n: int, version: int) -> dict | None:
         comp = self.elman
+        assert comp is not None  # fit() calls this for the elman model only
         if not comp.ready:
             self.counts["elman_not_ready"] += 1
             return None
         net = comp.net
+        assert net is not None  # ready: the network is made
         metrics = {"method": "elman_online", "sigma": comp.std().tolist(), "samples": comp.learned,
                    "window": net.window, "n_hidden": net.n_hidden, "context_gain": float(net.context_gain),
                    "window_rmse_normalised": float(net.train_rmse)}

@@ -89,7 +89,9 @@ class PredictorCore:
         """Validate a paramset message published under name and swap it in. Returns (the new live model, '') or
         (None, 'duplicate') or (None, 'code: detail') when rejected (counted)."""
         with self._cv:
-            metrics = msg.get("metrics") if isinstance(msg.get("metrics"), dict) else {}
+            metrics = msg.get("metrics")
+            if not isinstance(metrics, dict):
+                metrics = {}
             target = metrics.get("target")
             if target not in FEATURES:
                 return self._reject(name, f"model_schema: metrics.target {str(target)[:40]!r} is not one of "
@@ -112,10 +114,11 @@ class PredictorCore:
             if std.shape != (n_out,) or not np.all(np.isfinite(std)) or not np.all(std > 0):
                 return self._reject(name, f"model_invalid_value: metrics.sigma must be {n_out} finite numbers > 0")
             seen = ps.metrics.get("samples_seen", -1)
-            extra = {} if ps.kind == "anfis" else dict(context_gain=float(ps.metrics["context_gain"]),
-                                                       context=[ps.arrays["context"].copy()])
+            anfis = ps.kind == "anfis"
             new = LiveModel(ps.kind, name, target, ps.version, ps.checksum, ps.arrays, ps.norm,
-                            tuple(float(s) for s in std), ps.n_in, seen if isinstance(seen, int) else -1, **extra)
+                            tuple(float(s) for s in std), ps.n_in, seen if isinstance(seen, int) else -1,
+                            context_gain=0.0 if anfis else float(ps.metrics["context_gain"]),
+                            context=[] if anfis else [ps.arrays["context"].copy()])
             self.live[target] = new  # the swap: one reference store (module docstring)
             self.sets["received"] += 1
             self.sets["accepted"] += 1

@@ -21,7 +21,7 @@ def answer_lag(t_ns, period_s: float) -> int:
     """Residuals one answer period apart: period_s over the median spacing of the residual times t_ns, at least 1."""
     dt = np.diff(np.asarray(t_ns, dtype=np.int64))
     dt = dt[dt > 0]
-    return max(1, int(round(period_s * 1e9 / np.median(dt)))) if len(dt) else 1
+    return max(1, int(round(period_s * 1e9 / float(np.median(dt))))) if len(dt) else 1
 
 
 def answer_sigma(residuals: np.ndarray, lag: int = 1, floor: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:

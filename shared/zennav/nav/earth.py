@@ -7,6 +7,7 @@ Normal gravity: Somigliana closed form with the standard free-air height terms
 from __future__ import annotations
 
 import math
+from typing import TypeVar
 
 import numpy as np
 
@@ -22,13 +23,16 @@ _K_SOMIGLIANA = B * GAMMA_P / (A * GAMMA_E) - 1.0
 _M_RATIO = OMEGA_IE**2 * A**2 * B / GM
 G0 = 9.80665  # standard gravity, for unit conversions only [m/s^2]
 
+# a latitude (or height) argument: one float (per-sample loops) or an array of them (a whole trajectory)
+Real = TypeVar("Real", float, np.ndarray)
+
 
 def _xp(x):
     """math for Python floats (the fast scalar path of per-sample loops), numpy for arrays."""
     return math if isinstance(x, float) else np
 
 
-def radii(lat: float) -> tuple[float, float]:
+def radii(lat: Real) -> tuple[Real, Real]:
     """Meridian (R_M, north-south) and prime-vertical (R_N, east-west) radii of curvature [m]; lat scalar or array."""
     xp = _xp(lat)
     s2 = xp.sin(lat) ** 2
@@ -42,19 +46,19 @@ def gravity_sin2(s2, h):
     return g_surface * (1.0 - 2.0 / A * (1.0 + F + _M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * h * h)
 
 
-def gravity(lat: float, h: float) -> float:
+def gravity(lat: Real, h: Real | float) -> Real:
     """Magnitude of normal gravity [m/s^2] at geodetic latitude lat [rad] and height h [m]; points down in n.
     lat, h scalars or arrays."""
     return gravity_sin2(_xp(lat).sin(lat) ** 2, h)
 
 
-def omega_ie_n(lat: float) -> np.ndarray:
+def omega_ie_n(lat: Real) -> np.ndarray:
     """Earth rate resolved in NED [rad/s]: (3,) for a scalar lat, (N, 3) for lat of shape (N,)."""
     xp = _xp(lat)
     return np.array([OMEGA_IE * xp.cos(lat), 0.0 * lat, -OMEGA_IE * xp.sin(lat)]).T
 
 
-def omega_en_n(lat: float, h: float, v_n) -> np.ndarray:
+def omega_en_n(lat: Real, h: Real | float, v_n) -> np.ndarray:
     """Transport rate (rotation of n relative to e) resolved in NED [rad/s] for velocity v_n [m/s];
     (3,) for scalars, (N, 3) for lat, h of shape (N,) and v_n of shape (N, 3)."""
     r_m, r_n = radii(lat)
@@ -134,7 +138,7 @@ def dllh_to_ned(dllh, lat, h) -> tuple:
     return d_lat * (r_m + h), d_lon * (r_n + h) * _xp(lat).cos(lat), -d_h
 
 
-def dr_to_dllh(lat: float, h: float) -> np.ndarray:
+def dr_to_dllh(lat: Real, h: Real | float) -> np.ndarray:
     """Diagonal of D^-1 (ned_to_dllh of a 1 m offset on each axis): (3,) for scalars, (N, 3) for arrays of
     shape (N,)."""
     return np.array(ned_to_dllh((1.0, 1.0, 1.0 + 0.0 * (lat + h)), lat, h)).T

@@ -102,6 +102,8 @@ class GnssData:
 
     def __post_init__(self):
         m = len(self.t_ns)
+        if (self.v_n is None) != (self.std_v_n is None):
+            raise ValueError("GnssData: v_n and std_v_n are given together or not at all")
         if self.fix is None:
             self.fix = np.full(m, int(FixType.SINGLE), dtype=np.int64)
         if self.num_sats is None:
@@ -111,27 +113,29 @@ class GnssData:
         return len(self.t_ns)
 
     def fix_at(self, k: int) -> GnssFix:
-        has_v = self.v_n is not None
+        v_n, std_v_n, fix, num_sats = self.v_n, self.std_v_n, self.fix, self.num_sats
+        assert fix is not None and num_sats is not None  # __post_init__ fills them
         return GnssFix(
             t_ns=int(self.t_ns[k]),
             llh=self.llh[k].copy(),
             std_ned=self.std_ned[k].copy(),
-            v_n=self.v_n[k].copy() if has_v else None,
-            std_v_n=self.std_v_n[k].copy() if has_v else None,
-            fix=int(self.fix[k]),
-            num_sats=int(self.num_sats[k]),
+            v_n=None if v_n is None else v_n[k].copy(),
+            std_v_n=None if std_v_n is None else std_v_n[k].copy(),
+            fix=int(fix[k]),
+            num_sats=int(num_sats[k]),
         )
 
     def slice(self, sel) -> GnssData:
-        has_v = self.v_n is not None
+        v_n, std_v_n, fix, num_sats = self.v_n, self.std_v_n, self.fix, self.num_sats
+        assert fix is not None and num_sats is not None  # __post_init__ fills them
         return GnssData(
             self.t_ns[sel],
             self.llh[sel],
             self.std_ned[sel],
-            self.v_n[sel] if has_v else None,
-            self.std_v_n[sel] if has_v else None,
-            self.fix[sel],
-            self.num_sats[sel],
+            None if v_n is None else v_n[sel],
+            None if std_v_n is None else std_v_n[sel],
+            fix[sel],
+            num_sats[sel],
         )
 
 

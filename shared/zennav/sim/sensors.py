@@ -126,10 +126,9 @@ def simulate_gnss(traj: Trajectory, t_ns, t0_ns: int, lever_arm_b, std_ned, vel_
     llh, v_n = antenna_truth(traj, _seconds(t_ns, t0_ns), lever_arm_b)
     std_ned = np.tile(np.asarray(std_ned, dtype=float), (m, 1))
     llh = llh + earth.dr_to_dllh(llh[:, 0], llh[:, 2]) * std_ned * rng.standard_normal((m, 3))
-    if vel_std is None:
-        v_n = std_v_n = None
-    else:
+    v_meas = std_v_n = None
+    if vel_std is not None:
         std_v_n = np.full((m, 3), float(vel_std))
-        v_n = v_n + std_v_n * rng.standard_normal((m, 3))
-    return GnssData(t_ns, llh, std_ned, v_n, std_v_n, np.full(m, int(fix), dtype=np.int64),
+        v_meas = v_n + std_v_n * rng.standard_normal((m, 3))
+    return GnssData(t_ns, llh, std_ned, v_meas, std_v_n, np.full(m, int(fix), dtype=np.int64),
                     np.full(m, int(num_sats), dtype=np.int64))

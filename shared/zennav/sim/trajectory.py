@@ -341,7 +341,8 @@ def car_trajectory(duration_s: float, seed=0, start_llh=(0.5328, 1.9959, 30.0), 
     15-300 m, gentle hills (grade up to 6 deg), speed changes and stops; ends braked to a standstill a few
     seconds before duration_s. Speeds [m/s] up to max_speed, lateral acceleration [m/s^2] up to max_lat_accel."""
     rng = np.random.default_rng(seed)
-    tr = {"speed": [], "turn": [], "grade": []}  # transitions (start, duration, delta) per profile
+    # transitions (start, duration, delta) per profile
+    tr: dict[str, list[tuple[float, float, float]]] = {"speed": [], "turn": [], "grade": []}
     t, v, height = min(rng.uniform(8.0, 15.0), 0.1 * duration_s), 0.0, 0.0
 
     def speed_to(v1, accel):

@@ -96,6 +96,7 @@ class AidSource:
         """The live measurement noise for nav/status: the adaptive estimate, else the R of the last update."""
         if self.adaptive is not None:
             return self.adaptive.status()
+        assert self.R_used is not None  # asked only once an update has set it (Navigator.status)
         return {"R": self.R_used.tolist()}
 
     def get_state(self) -> dict:
