@@ -369,18 +369,23 @@ def could_not_help(lo: dict, min_samples: int) -> str:
     return "no answer passed the ins's checks (see the rejections above)"
 
 
+COMMON_ROWS = ("dataset", "duration", "IMU rate", "truth")  # the same for every run of one demo: printed once
+
+
 def side_by_side(rows: dict[str, dict]) -> str:
-    """The accuracy tables of several runs (label -> metrics dict) side by side."""
+    """The accuracy tables of several runs (label -> metrics dict) side by side, the rows they share first."""
     tables = {label: [line.split("  ", 1) for line in format_table(m).splitlines()] for label, m in rows.items()}
     first = next(iter(tables.values()))
     names = [r[0].rstrip() for r in first]
-    width = max(len(n) for n in names)
     cols = {label: [r[1].strip() if len(r) > 1 else "" for r in t] for label, t in tables.items()}
-    widths = {label: max(len(label), *(len(c) for c in col)) for label, col in cols.items()}
+    width = max(len(n) for n in names)
+    common = [f"{n:<{width}}  {cols[next(iter(cols))][i]}" for i, n in enumerate(names) if n in COMMON_ROWS]
+    keep = [i for i, n in enumerate(names) if n not in COMMON_ROWS]
+    widths = {label: max(len(label), *(len(col[i]) for i in keep)) for label, col in cols.items()}
     head = f"{'':<{width}}  " + "  ".join(f"{label:<{widths[label]}}" for label in cols)
-    body = [f"{n:<{width}}  " + "  ".join(f"{cols[label][i]:<{widths[label]}}" for label in cols)
-            for i, n in enumerate(names)]
-    return "\n".join([head.rstrip(), *(b.rstrip() for b in body)])
+    body = [f"{names[i]:<{width}}  " + "  ".join(f"{cols[label][i]:<{widths[label]}}" for label in cols)
+            for i in keep]
+    return "\n".join([*common, "", head.rstrip(), *(b.rstrip() for b in body)])
 
 
 def _verdict(diff: dict) -> str:
