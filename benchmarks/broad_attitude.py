@@ -44,7 +44,7 @@ DEFAULT_DATA = REPO.parent / "shared" / "data" / "broad"
 TUNING_TRIALS = ("07_undisturbed_fast_rotation_B", "16_undisturbed_fast_translation_B", "24_disturbed_tapping_A")
 GROUPS = ("rotation", "translation", "combined", "disturbed", "fast translation")
 FILTERS = ("zennav", "VQF", "Madgwick", "Mahony")
-TUNE_GRID = {
+TUNE_GRID: dict[str, tuple] = {
     "tau_acc_s": (1.0, 2.0, 3.0),
     "acc_lowpass_s": (2.0, 3.0, 4.5),
     "tau_bias_s": (30.0, 100.0),
@@ -177,7 +177,7 @@ def main(argv=None) -> None:
         tune(trials, cfg)
         return
 
-    rmse = {f: {} for f in FILTERS}
+    rmse: dict[str, dict[str, float]] = {f: {} for f in FILTERS}
     seconds = dict.fromkeys(FILTERS, 0.0)
     samples = 0
     for name, trial in trials.items():

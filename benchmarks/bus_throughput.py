@@ -30,6 +30,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -76,7 +77,7 @@ def sink_main(argv) -> int:
     args = p.parse_args(argv)
     run = ServiceRunner("ins", args)
     pub = run.bus.publisher(run.keys.nav_status())
-    st = {"n": 0, "imu": 0, "t0": None, "src": None, "cseqs": set()}
+    st: dict[str, Any] = {"n": 0, "imu": 0, "t0": None, "src": None, "cseqs": set()}
 
     def on(key, msg, recv_ns):
         if st["t0"] is None:

@@ -69,6 +69,7 @@ import statistics
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -240,7 +241,7 @@ def main() -> None:
         except ImportError:
             print("anfis-toolbox is not installed (pip install -e '.[bench]'); skipping it", file=sys.stderr)
             methods.remove("toolbox")
-    options = {}
+    options: dict[str, Any] = {}  # TrainConfig fields of several types
     for kv in args.train_option:
         key, _, value = kv.partition("=")
         if key not in TrainConfig.__dataclass_fields__ or key in ("method", "max_epochs", "seed", "pso"):

@@ -67,12 +67,15 @@ def _answered(res) -> int:
 
 def drive(args) -> None:
     ds = load_dataset(args.dataset)
+    if ds.truth is None:
+        raise SystemExit(f"{ds.name} has no truth to score the drift against")
     print(f"{ds.name}: first window after {args.train_s:g} s, {args.gap_s:g} s of GNSS between windows; "
           f"learned target: {args.target}; reference: {ds.truth.source}")
     print(HEADER)
     for length in (float(x) for x in args.windows.split(",")):
         every = (length + args.gap_s, length, args.train_s)
-        base, rms = None, {}
+        base: float | None = None
+        rms: dict[str, list[float]] = {}
         for model, seed, label in _runs(args.seeds):
             t0 = time.perf_counter()
             res = run_replay(ds, outage_every=every, compensator=make_compensator(model, args.target, seed))
@@ -120,14 +123,14 @@ def quadrotor(args) -> None:
         if not tests:
             print(f"{length:>6.0f}s  no flight is long enough")
             continue
-        base, rms = None, {}
+        base: float | None = None
+        rms: dict[str, list[float]] = {}
         for model, seed, label in _runs(args.seeds):
             t0 = time.perf_counter()
             drifts, answered = [], 0
             for k, fold in enumerate(folds):
-                comp = None
-                if model != "none":
-                    comp = make_compensator(model, args.target, seed)
+                comp = make_compensator(model, args.target, seed)  # None for 'none'
+                if comp is not None:
                     comp.add([smp for s in folds[1 - k] for smp in samples[s]])
                 for spec in (s for s in fold if s in tests):
                     ds, start = tests[spec], starts[spec]

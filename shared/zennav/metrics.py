@@ -80,7 +80,8 @@ def evaluate(ds: Dataset, res: ReplayResult) -> dict:
         e_est = quat_to_euler(res.q_nb)
         idx = np.clip(np.searchsorted(res.t_ns, t_ref), 0, len(res.t_ns) - 1)
         d = wrap_angle(e_est[idx] - truth.euler[sel])
-        m["attitude_rms_deg"] = {k: math.degrees(_rms(d[:, i])) for i, k in enumerate(("roll", "pitch", "yaw"))}
+        rms_rad = {k: _rms(d[:, i]) for i, k in enumerate(("roll", "pitch", "yaw"))}  # None: no truth in the run
+        m["attitude_rms_deg"] = {k: None if r is None else math.degrees(r) for k, r in rms_rad.items()}
     for a, b in res.windows:
         inside = (t_ref >= a) & (t_ref < b)
         if not inside.any():

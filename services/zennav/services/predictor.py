@@ -91,7 +91,8 @@ class PredictorNode:
     def on_model(self, key: str, msg: dict, recv_ns: int, latency: bool = True) -> bool:
         """Validate a model_params message and swap it in; False when rejected (or a duplicate)."""
         name = key.rsplit("/", 1)[-1]
-        cur = self.core.live.get((msg.get("metrics") or {}).get("target"))
+        target = (msg.get("metrics") or {}).get("target")
+        cur = self.core.live.get(target) if isinstance(target, str) else None
         try:
             ps = M.paramset_of(msg)
         except Exception as e:  # a map paramset_of cannot read
@@ -145,11 +146,9 @@ class PredictorNode:
     def counters(self) -> dict:
         lat = list(self.swap_latency_ns)
         val = list(self.validate_ns)
-        c = self.core.counters()
-        c.update(swaps=len(lat), swap_p50_us=round(_pct(lat, 50) / 1e3, 1), swap_p99_us=round(_pct(lat, 99) / 1e3, 1),
-                 swap_max_us=round(max(lat, default=0) / 1e3, 1), validate_p99_us=round(_pct(val, 99) / 1e3, 1),
-                 torch_imported=int("torch" in sys.modules))
-        return c
+        return {**self.core.counters(), "swaps": len(lat), "swap_p50_us": round(_pct(lat, 50) / 1e3, 1),
+                "swap_p99_us": round(_pct(lat, 99) / 1e3, 1), "swap_max_us": round(max(lat, default=0) / 1e3, 1),
+                "validate_p99_us": round(_pct(val, 99) / 1e3, 1), "torch_imported": int("torch" in sys.modules)}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -41,12 +41,16 @@ import argparse
 import sys
 import threading
 from collections import Counter
+from typing import TYPE_CHECKING
 
 from zennav import messages as M
 from zennav.learn.learner import Learner
 from zennav.learn.settings import MODELS, OPTIMIZERS, LearnSettings
 from zennav.nav.learning import FEATURES, OUTPUTS, TARGETS
 from zennav.service import ServiceRunner, add_bus_args
+
+if TYPE_CHECKING:
+    from zennav.bus import Publisher
 
 DEFAULTS = LearnSettings()
 
@@ -206,7 +210,7 @@ def main(argv=None) -> int:
     device = args.device or str(default_device())
     k = run.keys
     bus = run.bus
-    pubs: dict[str, object] = {}
+    pubs: dict[str, Publisher] = {}
     pub_lock = threading.Lock()
 
     def publish(name: str, msg: dict) -> None:

@@ -216,9 +216,9 @@ class AdaptiveComplementaryFilter:
         self.config = config or ComplementaryConfig()
         self._k_p, self._k_i = self.config.gains()
         self._q: tuple | None = None
-        self._b = (0.0, 0.0, 0.0)
+        self._b: tuple[float, ...] = (0.0, 0.0, 0.0)
         self._w = 1.0
-        self._m = (0.0, 0.0)
+        self._m: tuple[float, ...] = (0.0, 0.0)
         self._h = 0.0
         self._r = 0.0
         self._t: float | None = None

@@ -324,8 +324,11 @@ def fit_anfis(x, y, *, n_rules: int | None = None, n_mf: int | None = None, conf
     x, y = _as_xy(x, y)
     norm = anfis_numpy.fit_normalization(x, y)
     xn, yn = (x - norm["x_mean"]) / norm["x_std"], (y - norm["y_mean"]) / norm["y_std"]
-    rb = (anfis_numpy.cluster_rulebase(xn, n_rules, seed=config.seed) if n_rules is not None
-          else anfis_numpy.grid_rulebase(xn, n_mf))
+    if n_rules is not None:
+        rb = anfis_numpy.cluster_rulebase(xn, n_rules, seed=config.seed)
+    else:
+        assert n_mf is not None  # exactly one of the two (checked above)
+        rb = anfis_numpy.grid_rulebase(xn, n_mf)
     model = TorchAnfis(rb, n_out=y.shape[1], device=device or default_device())
     val = (None, None)
     if x_val is not None:

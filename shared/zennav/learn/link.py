@@ -17,8 +17,12 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
+from typing import TYPE_CHECKING
 
 from zennav import messages as M
+
+if TYPE_CHECKING:
+    from zennav.nav.learning import LearnQuery
 
 
 class LearningLink:
@@ -37,7 +41,7 @@ class LearningLink:
         self.max_age_ns = int(max_age_s * 1e9)
         self.lockstep_timeout_s = float(lockstep_timeout_s)
         self.cv = threading.Condition(lock if lock is not None else threading.RLock())
-        self.pending: dict[tuple, object] = {}  # (src, seq) -> LearnQuery, oldest first
+        self.pending: dict[tuple, LearnQuery] = {}  # (src, seq) -> query, oldest first
         self.sent = {t: 0 for t in self.targets}  # samples published per target
         self.counts: Counter[str] = Counter()
         self.last_model = ""

@@ -199,9 +199,12 @@ class Alignment:
         difference with the last tracked fix when it is at most outage_timeout_s old; (None, None) otherwise."""
         cfg = self.config
         if fix.v_n is not None and cfg.use_gnss_velocity:
+            assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
             return np.asarray(fix.v_n, dtype=float), np.maximum(fix.std_v_n, cfg.vel_std_floor_mps)
         prev = self.prev_track
-        dt = (fix.t_ns - prev[0]) / NS if prev is not None else 0.0
+        if prev is None:
+            return None, None
+        dt = (fix.t_ns - prev[0]) / NS
         if not 0.0 < dt <= cfg.outage_timeout_s:
             return None, None
         v = earth.llh_to_ned(np.asarray(fix.llh, dtype=float), prev[1]) / dt
@@ -234,10 +237,10 @@ class Alignment:
                                       cfg.align_max_heading_std)
                 return self._start_fine(nav, al.euler, al.std_euler, "gyrocompass", fix, omega_ib_b, v, std_pos,
                                         std_v)
-        fast = v is not None and math.hypot(v[0], v[1]) >= cfg.align_min_speed_mps
-        euler, std_euler = (course_alignment(v, std_v, cfg.align_course_std, cfg.align_tilt_std) if fast
-                            else (None, None))
-        if fast and std_euler[2] <= cfg.align_max_heading_std:
+        if v is None or math.hypot(v[0], v[1]) < cfg.align_min_speed_mps:
+            return "align_coarse"
+        euler, std_euler = course_alignment(v, std_v, cfg.align_course_std, cfg.align_tilt_std)
+        if std_euler[2] <= cfg.align_max_heading_std:
             if self.tilt_std < cfg.align_tilt_std:  # a better roll and pitch than 0 and the climb angle
                 euler[:2] = quat_to_euler(nav.state.q_nb)[:2]
                 std_euler[:2] = self.tilt_std

@@ -464,5 +464,9 @@ def _fix_to_map(fix: GnssFix) -> dict:
 
 
 def _fix_from_map(m: dict) -> GnssFix:
-    arrays = {k: None if m[k] is None else np.array(m[k], dtype=float) for k in _FIX_ARRAYS}
-    return GnssFix(t_ns=int(m["t_ns"]), fix=int(m["fix"]), num_sats=int(m["num_sats"]), **arrays)
+    def optional(key: str) -> np.ndarray | None:
+        return None if m[key] is None else np.array(m[key], dtype=float)
+
+    return GnssFix(t_ns=int(m["t_ns"]), llh=np.array(m["llh"], dtype=float),
+                   std_ned=np.array(m["std_ned"], dtype=float), v_n=optional("v_n"), std_v_n=optional("std_v_n"),
+                   fix=int(m["fix"]), num_sats=int(m["num_sats"]))

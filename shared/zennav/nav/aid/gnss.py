@@ -90,7 +90,11 @@ class GnssPosition(AidSource):
 
     def _input_error(self, nav, fix: GnssFix) -> str:
         cfg = self.config
-        arrays = [fix.llh, fix.std_ned] + ([fix.v_n, fix.std_v_n] if fix.v_n is not None else [])
+        arrays = [fix.llh, fix.std_ned]
+        if fix.v_n is not None:
+            if fix.std_v_n is None:
+                return "gnss_malformed"
+            arrays += [fix.v_n, fix.std_v_n]
         if any(np.shape(a) != (3,) for a in arrays) or not all(np.all(np.isfinite(a)) for a in arrays):
             return "gnss_malformed"
         if fix.t_ns == self.last_fix_t_ns:
@@ -239,6 +243,7 @@ class GnssVelocity(AidSource):
         if ctx.coarse or fix.v_n is None or not self.config.use_gnss_velocity:
             return False
         fix_v_n = np.asarray(fix.v_n, dtype=float)
+        assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
         z, H = velocity_model(nav.state, nav.lever_b, ctx.omega_ib_b, fix_v_n)
         R = np.diag(np.square(np.maximum(fix.std_v_n, self.config.vel_std_floor_mps)))
         return nav.update(self, Measurement(fix.t_ns, fix_v_n, z, H, R))
