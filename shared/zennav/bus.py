@@ -277,6 +277,12 @@ class Bus:
         if n <= 5 or n % 1000 == 0:
             log.warning("rejected message on %s (#%d %s): %s", key, n, code, reason)
 
+    @property
+    def callback_lock(self) -> threading.RLock | None:
+        """The lock every subscription callback of a serial bus runs under (None when not serial): a callback that
+        waits for another subscription's message waits on a condition of this lock."""
+        return self._cb_lock
+
     def rejected_counts(self) -> dict[str, int]:
         """A copy of the rejection counters (reason code -> count), safe from any thread."""
         with self._rej_lock:

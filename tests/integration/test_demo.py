@@ -67,6 +67,26 @@ def test_demo_short_drive_says_learning_could_not_help(tmp_path):
             assert np.abs(np.array([s[field] for s in sols]) - want).max() <= 1e-9, (key, field)
 
 
+def test_demo_learning_over_the_bus_lowers_the_outage_drift(tmp_path):
+    """A 360 s drive with a 60 s outage at 240 s: the trainer publishes sets from the ins's samples, the predictor
+    answers the outage's queries, the ins fuses them, and the outage drift measured over the bus is well below the
+    plain ins's (in process this run gives 13.6 m without learning, 6.2 m with ANFIS); the learned solution equals
+    the in-process learning loop bit for bit."""
+    out = tmp_path / "demo"
+    p, pids = _demo("--duration", 360, "--outage", "240:60", "--out", out, timeout=600)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert not _running(pids)
+    assert p.stdout.count("identical, bit for bit") == 2, p.stdout
+    assert "LEARNING COULD NOT HELP" not in p.stdout
+    learned = json.loads((out / "metrics.json").read_text())
+    plain = json.loads((out / "no-learning" / "metrics.json").read_text())
+    lo = learned["pipeline"]["learning"]
+    assert lo["sets_published"] and lo["answered"] >= 50 and lo["ins"]["fused"] >= 50, lo
+    assert learned["compensation"]["where"].startswith("over the bus")
+    drift, drift_plain = (m["outages"][0]["max_horizontal_m"] for m in (learned, plain))
+    assert drift < 0.7 * drift_plain, (drift, drift_plain)
+
+
 @pytest.mark.parametrize("how", ["crashes", "never comes up"])
 def test_demo_fails_cleanly_when_a_service_does_not_come_up(tmp_path, how):
     """An ins that exits at once, or one that never announces itself: the demo exits 1 with a message that

@@ -50,8 +50,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--learn-targets", default="body_velocity",
                    help="comma-separated target variants to publish samples and queries for (position, velocity, "
                         "drift, body_velocity; zennav.nav.learning)")
-    p.add_argument("--correction-max-age", type=float, default=1.0,
-                   help="fuse an answer only if its query is at most this old [s of data time]")
     p.add_argument("--lockstep", action="store_true",
                    help="wait for the answer to each learn/query before the next sensor sample (a replay of a "
                         "recording, with the predictor's --lockstep: the in-process replay's learned corrections, "
@@ -90,8 +88,12 @@ def main(argv=None) -> int:
         pubs["query"] = bus.publisher(k.learn_query())
         # lockstep: the sensor callback waits on a condition of the serial bus's callback lock, which the
         # correction callback needs (zennav.learn.link)
-        learn = LearningLink(publish, run.log, targets, args.correction_max_age,
-                             lockstep_timeout_s=args.lockstep_timeout if args.lockstep else 0.0, lock=bus._cb_lock)
+        from zennav.nav.types import NavConfig
+
+        max_age_s = NavConfig().with_(**filter_params).learn_answer_max_age_s  # queries unanswered past it expire
+        learn = LearningLink(publish, run.log, targets, max_age_s,
+                             lockstep_timeout_s=args.lockstep_timeout if args.lockstep else 0.0,
+                             lock=bus.callback_lock)
     node = InsNode(publish, run.log, filter_params, args.solution_every, on_state=lambda d: setattr(run, "detail", d),
                    bus_rejected=bus.rejected_counts, learning=learn, fetch_start=run.stream_start_of,
                    imu_key=k.imu(args.imu_id), gnss_key=k.gnss(args.gnss_id))
