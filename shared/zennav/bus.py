@@ -23,8 +23,8 @@ import threading
 import time
 import uuid
 from collections import Counter
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
 import zenoh
 
@@ -36,7 +36,8 @@ DEPLOY_DIR = Path(__file__).resolve().parents[2] / "deploy"
 CONFIG_FILES = {"peer": "zenoh-peer.json5", "client": "zenoh-client.json5", "router": "zenoh-router.json5"}
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
-_PRIORITY = {n: getattr(zenoh.Priority, n) for n in ("REAL_TIME", "INTERACTIVE_HIGH", "INTERACTIVE_LOW", "DATA_HIGH", "DATA", "DATA_LOW", "BACKGROUND")}
+_PRIORITY = {n: getattr(zenoh.Priority, n) for n in ("REAL_TIME", "INTERACTIVE_HIGH", "INTERACTIVE_LOW", "DATA_HIGH",
+                                                      "DATA", "DATA_LOW", "BACKGROUND")}
 _CONGESTION = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionControl.DROP}
 _RELIABILITY = {"reliable": zenoh.Reliability.RELIABLE, "best_effort": zenoh.Reliability.BEST_EFFORT}
 _ENCODING = zenoh.Encoding(M.ENCODING)
@@ -99,7 +100,7 @@ class Publisher:
     """Publishes message maps on one key with the stream's QoS; stamps src, seq and pub_ns; optionally keeps
     the last payload and serves it to queries (late joiners)."""
 
-    def __init__(self, bus: "Bus", key: str, qos: M.QoS | None = None, latest: bool | None = None):
+    def __init__(self, bus: Bus, key: str, qos: M.QoS | None = None, latest: bool | None = None):
         self.bus = bus
         self.key = key
         self.qos = qos or M.qos_of(key)
@@ -155,7 +156,7 @@ class Publisher:
 class Subscription:
     """A zenoh subscriber draining into a worker thread (see the module docstring)."""
 
-    def __init__(self, bus: "Bus", keyexpr: str, callback: Callable, *, validate: bool, channel: str,
+    def __init__(self, bus: Bus, keyexpr: str, callback: Callable, *, validate: bool, channel: str,
                  capacity: int, name: str):
         self.bus = bus
         self.keyexpr = keyexpr
@@ -422,7 +423,7 @@ class Bus:
         except Exception:
             pass
 
-    def __enter__(self) -> "Bus":
+    def __enter__(self) -> Bus:
         return self
 
     def __exit__(self, *exc) -> None:

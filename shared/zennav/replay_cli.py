@@ -37,8 +37,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
     seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins)."""
-    from .learn.loop import make_compensator
     from .datasets.registry import load_dataset
+    from .learn.loop import make_compensator
 
     try:
         ds = load_dataset(spec)
@@ -91,9 +91,9 @@ _outage_opts = [
     click.option("--json", "as_json", is_flag=True, help="Print metrics.json instead of the table."),
     click.option("--compensation", type=click.Choice(["none", "anfis", "anfis-pso", "elman"]), default="none",
                  show_default=True, help="Learned INS-error compensation during outages, the trainer's and "
-                 "predictor's learning loop in this process (zennav.learn.loop, default LearnSettings): anfis (premises "
-                 "by hybrid LSE + Fletcher-Reeves CG, seed 000), anfis-pso (premises by particle swarm, seed 003), "
-                 "elman (online Elman network, seed 002)."),
+                 "predictor's learning loop in this process (zennav.learn.loop, default LearnSettings): anfis "
+                 "(premises by hybrid LSE + Fletcher-Reeves CG, seed 000), anfis-pso (premises by particle swarm, "
+                 "seed 003), elman (online Elman network, seed 002)."),
     click.option("--target", type=click.Choice(TARGETS), default="body_velocity", show_default=True,
                  help="What the model learns (zennav.nav.learning): the filter's position corrections (seed 000), its "
                  "velocity corrections, i.e. increments of INS minus filter (seed 002), the drift of a free INS "

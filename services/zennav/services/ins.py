@@ -32,7 +32,6 @@ from zennav.nodes.ins import InsNode
 from zennav.params import ParamError, load_filter_params
 from zennav.service import ServiceRunner, add_bus_args
 
-
 LOCKSTEP_QUEUE = 1 << 24  # sensor messages buffered with --lockstep (a replay's whole stream)
 
 
