@@ -25,6 +25,7 @@ import uuid
 from collections import Counter
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any, Literal, overload
 
 import zenoh
 
@@ -43,6 +44,9 @@ _RELIABILITY = {"reliable": zenoh.Reliability.RELIABLE, "best_effort": zenoh.Rel
 _ENCODING = zenoh.Encoding(M.ENCODING)
 
 _log_inited = False
+
+MsgCallback = Callable[[str, dict, int], object]  # (key, validated message map, recv_ns); the result is ignored
+RawCallback = Callable[[str, bytes, int], object]  # (key, payload as received, recv_ns); the result is ignored
 
 
 def _init_zenoh_log() -> None:
@@ -156,11 +160,12 @@ class Publisher:
 class Subscription:
     """A zenoh subscriber draining into a worker thread (see the module docstring)."""
 
-    def __init__(self, bus: Bus, keyexpr: str, callback: Callable, *, validate: bool, channel: str,
-                 capacity: int, name: str):
+    def __init__(self, bus: Bus, keyexpr: str, callback: MsgCallback | RawCallback, *, validate: bool,
+                 channel: str, capacity: int, name: str):
         self.bus = bus
         self.keyexpr = keyexpr
-        self.callback = callback
+        # a MsgCallback with validate, else a RawCallback (Bus.subscribe's overloads pair them)
+        self.callback: Callable[[str, Any, int], object] = callback
         self.validate = validate
         self.validator = M.Validator()
         self.received = 0
@@ -232,15 +237,14 @@ class Bus:
         self._cb_lock = threading.RLock() if serial else None
         self._subs: list[Subscription] = []
         self._pubs: dict[str, Publisher] = {}
-        self._others: list = []
         self.rejected: Counter[str] = Counter()
         self.rejected_by_key: Counter[tuple[str, str]] = Counter()
         self.errors: Counter[str] = Counter()
         self._rej_lock = threading.Lock()
-        self._token = None
+        self._token: zenoh.LivelinessToken | None = None
         self._alive: set[str] = set()
         self._alive_cv = threading.Condition()
-        self._alive_watch = None
+        self._alive_watch: tuple[zenoh.Subscriber[Any], threading.Thread] | None = None
         self._alive_listeners: list[Callable[[str, bool], None]] = []
         self._closed = False
         self._status_pub: Publisher | None = None
@@ -255,7 +259,15 @@ class Bus:
             pub = self._pubs[key] = Publisher(self, key, qos, latest)
         return pub
 
-    def subscribe(self, keyexpr: str, callback: Callable[[str, object, int], None], *, validate: bool = True,
+    @overload
+    def subscribe(self, keyexpr: str, callback: MsgCallback, *, validate: Literal[True] = True,
+                  channel: str | None = None, capacity: int = 4096, name: str | None = None) -> Subscription: ...
+
+    @overload
+    def subscribe(self, keyexpr: str, callback: RawCallback, *, validate: Literal[False],
+                  channel: str | None = None, capacity: int = 4096, name: str | None = None) -> Subscription: ...
+
+    def subscribe(self, keyexpr: str, callback: MsgCallback | RawCallback, *, validate: bool = True,
                   channel: str | None = None, capacity: int = 4096, name: str | None = None) -> Subscription:
         """callback(key, msg_or_bytes, recv_ns) runs on the subscription's worker thread; with validate=True
         it gets validated message maps (rejections are counted in ``rejected`` and logged), else raw bytes.
@@ -405,9 +417,9 @@ class Bus:
         for sub in self._subs:
             sub.close()
         if self._alive_watch is not None:
-            sub, t = self._alive_watch
+            watcher, t = self._alive_watch
             try:
-                sub.undeclare()
+                watcher.undeclare()
             except Exception:
                 pass
             if threading.current_thread() is not t:

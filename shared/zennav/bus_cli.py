@@ -102,7 +102,7 @@ def monitor_cmd(ctx):
 @click.option("--count", type=int, default=None, help="stop after this many messages")
 @_bus_options
 def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicle, mode, zenoh_config, connect,
-               listen):
+               listen) -> None:
     """Record every sample on the chosen keys to an MCAP file (Foxglove-openable)."""
     from . import messages as M
     from .bus import Bus
@@ -115,7 +115,7 @@ def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicl
     ev = _stop_event()
     expected: dict[str, int | None] = {}  # per ins (nav status key): solutions of its finished stream
 
-    def on_sample(key, payload, recv_ns):
+    def on_sample(key: str, payload: bytes, recv_ns: int) -> None:
         rec.add(key, payload, recv_ns)
         if count is not None and rec.count >= count:
             ev.set()

@@ -29,8 +29,11 @@ import socket
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING, TextIO, TypeVar
 
 import click
 import numpy as np
@@ -39,6 +42,9 @@ from .launch import Launcher, load_launch
 from .metrics import antenna_llh, evaluate, format_table, ned_errors, write_outputs
 from .nav.types import NS
 from .replay import ReplayResult, run_replay
+
+if TYPE_CHECKING:  # zenoh is imported when the demo opens its bus
+    from .bus import Bus
 
 DEMO_LAUNCH = Path(__file__).resolve().parents[2] / "deploy" / "demo.yaml"
 TARGET = "body_velocity"  # the target variant the demo's learning loop learns (zennav.nav.learning)
@@ -104,7 +110,7 @@ class _Tee:
     """The launcher's output: every line to the log file; the launcher's own lines and the services'
     warnings and errors also to the terminal."""
 
-    def __init__(self, f):
+    def __init__(self, f: TextIO) -> None:
         self.f = f
         self.tail: deque[str] = deque(maxlen=40)
 
@@ -122,7 +128,7 @@ class _Collector:
     """The distributed run as the demo process receives it (lossless fifo subscriptions): the stream start,
     every solution and the end-of-stream status of both ins; ``complete`` is set once all are in."""
 
-    def __init__(self, bus):
+    def __init__(self, bus: Bus) -> None:
         from .messages import Keys
 
         self.start: dict | None = None
@@ -135,20 +141,20 @@ class _Collector:
         for prefix in RUNS:
             k = Keys(bus.keys.vehicle, nav_prefix=prefix)
             self.solution_keys[prefix] = k.nav_solution()
-            bus.subscribe(k.nav_solution(), lambda key, msg, recv_ns, p=prefix: self._on_solution(p, msg),
-                          channel="fifo", capacity=65536, name=f"demo-solution{prefix}")
-            bus.subscribe(k.nav_status(), lambda key, msg, recv_ns, p=prefix: self._on_status(p, msg),
-                          channel="fifo", name=f"demo-status{prefix}")
+            bus.subscribe(k.nav_solution(), partial(self._on_solution, prefix), channel="fifo", capacity=65536,
+                          name=f"demo-solution{prefix}")
+            bus.subscribe(k.nav_status(), partial(self._on_status, prefix), channel="fifo",
+                          name=f"demo-status{prefix}")
 
-    def _on_stream(self, key, msg, recv_ns) -> None:
+    def _on_stream(self, key: str, msg: dict, recv_ns: int) -> None:
         if msg["schema"] == "stream_start":
             self.start = msg
 
-    def _on_solution(self, prefix: str, msg: dict) -> None:
+    def _on_solution(self, prefix: str, key: str, msg: dict, recv_ns: int) -> None:
         self.solutions[prefix].append(msg)
         self._check()
 
-    def _on_status(self, prefix: str, msg: dict) -> None:
+    def _on_status(self, prefix: str, key: str, msg: dict, recv_ns: int) -> None:
         if msg["stream"].get("done"):
             self.status[prefix] = msg
             self._check()
@@ -174,19 +180,22 @@ class _DemoLauncher(Launcher):
 
     def _check_children(self, until: str | None = None) -> bool:
         super()._check_children()
-        self.failed = [f"{c.spec.name} exited with code {c.proc.returncode}" for c in self.children.values()
-                       if c.finished and c.proc.returncode != 0]
+        self.failed = [f"{c.spec.name} exited with code {p.returncode}" for c in self.children.values()
+                       if c.finished and (p := c.proc) is not None and p.returncode != 0]
         if not self.failed and time.monotonic() > self.deadline:
             self.failed = [f"the stream did not finish within {self.limit_s:.0f} s"]
         self.completed = not self.failed and self.children["record"].finished and self.complete.is_set()
         return self.completed or bool(self.failed)
 
 
-def _background(fn):
+_T = TypeVar("_T")
+
+
+def _background(fn: Callable[[], _T]) -> Callable[[], _T]:
     """Run fn in a daemon thread; the returned callable joins it and returns its result (or raises)."""
     box: dict = {}
 
-    def run():
+    def run() -> None:
         try:
             box["value"] = fn()
         except Exception as e:  # re-raised in the caller's thread
@@ -318,7 +327,9 @@ def learning_over_the_bus(recording: Path, ins_status: dict) -> dict:
     rejections): the figures the demo prints and writes to metrics.json."""
     from .recording import read_mcap
 
-    sets, answers, refused = [], Counter(), Counter()
+    sets: list[dict] = []
+    answers: Counter[int] = Counter()
+    refused: Counter[str] = Counter()
     for key, msg, _payload, _t in read_mcap(recording, [r"/learn/model/", r"/learn/correction$"]):
         if msg is None:
             continue
@@ -511,6 +522,8 @@ def run_demo(out: Path, spec: DemoSpec, launch_file: Path = DEMO_LAUNCH) -> None
     recording, got = run_set(launch_file, out, spec, settings, limit_s=2.0 * duration_s + 300.0)
     recorded, n_recorded = recording_stats(recording)
     pipes = {p: pipeline_result(got, p, recorded) for p in RUNS}
+    start = got.start
+    assert start is not None  # pipeline_result raised without one
     learned, plain = pipes[""], pipes[PLAIN_PREFIX]
     ref_plain, ref_learned = in_process_result()
     diffs = {"no_learning": compare(plain.result, ref_plain), "learned": compare(learned.result, ref_learned)}
@@ -518,8 +531,8 @@ def run_demo(out: Path, spec: DemoSpec, launch_file: Path = DEMO_LAUNCH) -> None
 
     for p, pipe in pipes.items():
         st = pipe.status
-        click.echo(f"\nins ({RUNS[p]}) consumed {st['imu_count']}/{got.start['counts']['imu']} IMU and "
-                   f"{st['gnss_count']}/{got.start['counts']['gnss']} GNSS samples over Zenoh in "
+        click.echo(f"\nins ({RUNS[p]}) consumed {st['imu_count']}/{start['counts']['imu']} IMU and "
+                   f"{st['gnss_count']}/{start['counts']['gnss']} GNSS samples over Zenoh in "
                    f"{pipe.result.wall_s:.1f} s ({st['imu_count'] / max(pipe.result.wall_s, 1e-9):.0f} IMU/s): "
                    "none lost or duplicated")
     n = len(plain.result.t_ns)
@@ -528,6 +541,7 @@ def run_demo(out: Path, spec: DemoSpec, launch_file: Path = DEMO_LAUNCH) -> None
                f"{_verdict(diffs['learned'])}")
     click.echo(f"\nlearning loop over the bus ({settings.label}, {TARGET}):")
     click.echo("\n".join(_learning_lines(lo)))
+    assert settings.min_samples is not None  # LearnSettings.__post_init__ resolves it (None: the model's default)
     why = could_not_help(lo, settings.min_samples)
 
     m_plain, m_learned = evaluate(ds, plain.result), evaluate(ds, learned.result)

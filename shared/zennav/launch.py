@@ -279,22 +279,22 @@ class Launcher:
 
     def _shutdown(self, code: int) -> int:
         self._stop.set()
-        running = [c for c in self.children.values() if c.proc is not None and c.proc.poll() is None]
+        running = [(c, p) for c in self.children.values() if (p := c.proc) is not None and p.poll() is None]
         if running:
-            self.say("launch", f"stopping {', '.join(c.spec.name for c in running)}")
-        for c in reversed(running):
+            self.say("launch", f"stopping {', '.join(c.spec.name for c, _ in running)}")
+        for _, p in reversed(running):
             try:
-                c.proc.send_signal(signal.SIGTERM)
+                p.send_signal(signal.SIGTERM)
             except ProcessLookupError:
                 pass
         deadline = time.monotonic() + self.spec.stop_timeout_s
-        for c in reversed(running):
+        for c, p in reversed(running):
             try:
-                c.proc.wait(max(0.1, deadline - time.monotonic()))
+                p.wait(max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 self.say("launch", f"{c.spec.name} did not stop in {self.spec.stop_timeout_s:.0f} s: killing")
-                c.proc.kill()
-                c.proc.wait(5)
+                p.kill()
+                p.wait(5)
         for c in self.children.values():
             for t in c.readers:
                 t.join(1.0)

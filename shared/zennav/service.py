@@ -16,6 +16,10 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # zenoh is imported when a service opens its bus
+    from .bus import Bus
 
 log = logging.getLogger("zennav.service")
 
@@ -150,7 +154,7 @@ class EndAcks:
     every --nav-prefix ins's: the publisher of a stream keeps its session open until all have it, since closing
     drops what is still queued."""
 
-    def __init__(self, bus):
+    def __init__(self, bus: Bus) -> None:
         self.bus = bus
         self.src = bus.src
         self.following: set[str] = set()  # status publishers (src) that reported on this stream ...

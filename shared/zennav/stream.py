@@ -122,8 +122,10 @@ class StreamFollower:
                 return
             if not self._join(msg):
                 return
+        merger = self.merger
+        assert merger is not None  # _begin sets it with src: a message of the live (or just joined) stream
         for m in M.samples(msg):
-            self.merger.push(m["cseq"], (key, m), self._release)
+            merger.push(m["cseq"], (key, m), self._release)
 
     def _join(self, msg: dict) -> bool:
         """Join the stream of msg (its start was missed) at msg, an IMU message; False when not (yet) possible."""
@@ -152,9 +154,10 @@ class StreamFollower:
         self.merger = M.SequenceMerger(next_cseq, self.max_hold)
         self.on_start(start, join)
 
-    def _release(self, item) -> None:
+    def _release(self, item: tuple[str, dict]) -> None:
         key, msg = item
         if msg["schema"] == "stream_end":
+            assert self.merger is not None  # _release is called by the merger only
             self.merger.flush(self._release)
             self.done, self.last_cseq = True, msg["last_cseq"]
             self.on_end(msg)

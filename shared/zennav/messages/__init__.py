@@ -10,7 +10,7 @@ be unit-tested, recorded and replayed without a network.
 Wire format: every message is a msgpack map with a header and the schema's fields::
 
     {"schema": "imu", "v": 1,          # schema name and version (zennav.messages.schema is the registry)
-     "t_ns": int,                       # sample time, integer ns of GPS time (DESIGN.md section 3)
+     "t_ns": int,                       # sample time, integer ns of GPS time (ARCHITECTURE.md, opening lines)
      "src": str, "seq": int,            # publisher instance id and its per-key sequence number (drop detection)
      "pub_ns": int,                     # wall-clock publish time [ns since 1970] (latency measurement only)
      ...fields}

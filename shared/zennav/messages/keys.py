@@ -1,4 +1,4 @@
-"""Key expressions and QoS of the key space (DESIGN.md section 4): ``zennav/@v1/<vehicle>/...``.
+"""Key expressions and QoS of the key space (ARCHITECTURE.md section 4): ``zennav/@v1/<vehicle>/...``.
 
 Key grammar, ``<base> = zennav/@v1/<vehicle>``::
 

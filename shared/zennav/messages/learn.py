@@ -1,4 +1,4 @@
-"""Learning-loop messages (DESIGN.md section 5): ins -> learn/samples -> trainer -> learn/model/<name> ->
+"""Learning-loop messages (ARCHITECTURE.md section 3): ins -> learn/samples -> trainer -> learn/model/<name> ->
 predictor; ins -> learn/query -> predictor -> learn/correction -> ins."""
 from __future__ import annotations
 

@@ -236,7 +236,7 @@ class Validator:
     """Decodes and validates messages of one subscriber; keeps the last t_ns per (key, src) for the
     monotonic-time check and counts rejections per reason code. Not thread-safe (one per consumer thread)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.last_t: dict[tuple[str, str], int] = {}
         self.rejected: Counter[str] = Counter()
         self.rejected_by_key: Counter[tuple[str, str]] = Counter()

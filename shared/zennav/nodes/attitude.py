@@ -21,11 +21,15 @@ reproduce the output whatever the arrival timing of the solutions was.
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import messages as M
 from ..stream import StreamFollower
+
+if TYPE_CHECKING:  # the filter is imported when a stream starts
+    from ..attitude.complementary import AdaptiveComplementaryFilter
 
 ZERO3 = (0.0, 0.0, 0.0)
 
@@ -51,7 +55,7 @@ class AttitudeNode:
         self.config = config
         self.imu_key = imu_key
         self.rate_max_age_ns = int(rate_max_age_s * 1e9)
-        self.filter = None
+        self.filter: AdaptiveComplementaryFilter | None = None  # built at each stream's start
         self.follower = StreamFollower(self._start, self._sample, self._end, fetch_start, log)
         self.on_sensor = self.follower.on_message  # every sensor message (GNSS too: the cseq merge needs them)
         self._levelled = False
@@ -116,12 +120,15 @@ class AttitudeNode:
             if self._held_s > self.config.level_time_s * (1.0 + 1e-9):
                 self._run_held()
         else:
+            assert self.filter is not None  # the follower hands samples only after on_start (_start) built it
             s = self.filter.step(dt, omega, f, w_in)
+            assert s.q_nb is not None  # levelled by the held batch (_run_held)
             self._emit(t_ns, s.q_nb.tolist(), s.bias_b.tolist(), s.weight, w_in)
         self.cost_s += time.perf_counter() - t0
 
     def _run_held(self) -> None:
         held, self._held, self._levelled = self._held, [], True
+        assert self.filter is not None  # samples are held only after on_start (_start) built it
         b = self.filter.batch(np.array([h[2] for h in held]), np.array([h[3] for h in held]),
                               dt=np.array([h[1] for h in held]), omega_in_n=np.array([h[4] for h in held]))
         q, bias, w = b.q_nb.tolist(), b.bias_b.tolist(), b.weight.tolist()

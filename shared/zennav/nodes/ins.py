@@ -14,11 +14,15 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 from .. import messages as M
 from ..learn.link import LearningLink
 from ..params import nav_config
 from ..stream import StreamFollower
+
+if TYPE_CHECKING:  # the engine (scipy included) is imported when a stream starts
+    from ..nav.navigator import Navigator
 
 
 class InsNode:
@@ -40,7 +44,7 @@ class InsNode:
         self.keys = {"imu": imu_key, "gnss": gnss_key}
         self.follower = StreamFollower(self._start, self._sample, self._end, fetch_start, log)
         self.on_sensor = self.follower.on_message
-        self.nav = None
+        self.nav: Navigator | None = None
         self.imu_count = self.gnss_count = self.sol_count = self.corrections = self.attitude_taken = 0
         self.wall_s, self._wall0, self._next_status_t, self._states = 0.0, 0.0, 0, (None, None)
         self._late = False  # this stream was joined late (its samples before the join are not ours)
@@ -56,10 +60,11 @@ class InsNode:
         if self.learn is not None:
             config = config.with_(learning=True)
             self.learn.reset()
-        self.nav, self._late = Navigator(config, initial), join is not None
+        self.nav = nav = Navigator(config, initial)
+        self._late = join is not None
         self.imu_count = self.gnss_count = self.sol_count = 0
         self._next_status_t = int(initial.t_ns) + self.status_period_ns
-        self._states = (self.nav.gnss_state, self.nav.align_state)
+        self._states = (nav.gnss_state, nav.align_state)
         self._wall0, self.wall_s = time.perf_counter(), 0.0
         self.log.info("stream %s from %s%s: %s IMU, %s GNSS expected", start["dataset"], start["src"],
                       " (joined late)" if join else "", start["counts"].get("imu"), start["counts"].get("gnss"))
@@ -67,16 +72,17 @@ class InsNode:
 
     def _sample(self, key: str, msg: dict) -> None:
         schema, nav = msg["schema"], self.nav
+        assert nav is not None  # the follower hands samples only after on_start (_start) built the engine
         if self.keys[schema] not in (None, key):
             return
         if schema == "gnss":
             self.gnss_count += 1
             nav.on_gnss(M.gnss_fix(msg))
-            self._reports()
+            self._reports(nav)
             return
         self.imu_count += 1
         ok = nav.on_imu(msg["t_ns"], msg["dtheta"], msg["dvel"])  # False: rejected by the engine (counted)
-        self._reports()
+        self._reports(nav)
         if self.learn is not None:
             self.learn.after_imu(nav)
         if ok:
@@ -115,8 +121,8 @@ class InsNode:
         self.attitude_taken += taken
         return taken
 
-    def _reports(self) -> None:
-        for rep in self.nav.pop_reports():
+    def _reports(self, nav: Navigator) -> None:
+        for rep in nav.pop_reports():
             self.publish("aid", M.aid_report_msg(rep))
 
     def on_correction(self, key: str, msg: dict) -> None:
@@ -128,7 +134,7 @@ class InsNode:
                                  "with --learning)" if self.learn is None else "no stream yet")
             return
         self.learn.on_correction(self.nav, msg)
-        self._reports()
+        self._reports(self.nav)
 
     def status_msg(self) -> dict:
         nav = self.nav

@@ -29,7 +29,7 @@ class KeyStats:
     __slots__ = ("count", "bytes", "lags", "next_seq", "drops", "dups", "rejected", "last_count", "rate",
                  "last_recv_ns", "schema")
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.count = 0
         self.bytes = 0
         self.lags: deque = deque(maxlen=2000)
@@ -154,7 +154,7 @@ class MonitorState:
         with self.lock:
             dt = max(now - self.t_rate, 1e-6)
             self.t_rate = now
-            keys = {}
+            keys: dict[str, dict] = {}
             for key, ks in sorted(self.per_key.items()):
                 ks.rate = (ks.count - ks.last_count) / dt
                 ks.last_count = ks.count
@@ -176,7 +176,7 @@ class MonitorState:
                          "p50_test_ratio": _r(_pct(list(a["ratios"]), 50)),
                          "max_test_ratio": _r(max(a["ratios"]) if a["ratios"] else None)}
                    for src, a in sorted(self.aid.items())}
-            rejected = Counter()
+            rejected: Counter[str] = Counter()
             for k in keys.values():
                 rejected.update(k["rejected"])
             return {"vehicle": self.keys.vehicle, "wall_time": time.time(), "window_s": round(dt, 3),
