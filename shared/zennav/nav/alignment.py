@@ -237,7 +237,7 @@ class Alignment:
                                       cfg.align_max_heading_std)
                 return self._start_fine(nav, al.euler, al.std_euler, "gyrocompass", fix, omega_ib_b, v, std_pos,
                                         std_v)
-        if v is None or math.hypot(v[0], v[1]) < cfg.align_min_speed_mps:
+        if v is None or not math.hypot(v[0], v[1]) >= cfg.align_min_speed_mps:  # not yet fast enough
             return "align_coarse"
         euler, std_euler = course_alignment(v, std_v, cfg.align_course_std, cfg.align_tilt_std)
         if std_euler[2] <= cfg.align_max_heading_std:
