@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import scipy.io
 import yaml
+
 from zennav.attitude.complementary import AdaptiveComplementaryFilter, ComplementaryConfig
 
 REPO = Path(__file__).resolve().parents[1]

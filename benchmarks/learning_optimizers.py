@@ -73,6 +73,7 @@ from typing import Any
 
 import numpy as np
 import torch
+
 from zennav.datasets.registry import load_dataset
 from zennav.learn import anfis_numpy, anfis_torch
 from zennav.learn.anfis_torch import TorchAnfis, TrainConfig

@@ -26,6 +26,7 @@ import argparse
 import time
 
 import numpy as np
+
 from zennav.datasets.registry import ansfl_specs, load_dataset
 from zennav.learn.loop import CHOICES, make_compensator, training_set
 from zennav.metrics import evaluate

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import pytest
+
 from zennav.datasets import registry
 from zennav.datasets.errors import DataError
 

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+
 from zennav.metrics import evaluate
 from zennav.nav.rotation import quat_to_euler, wrap_angle
 from zennav.nav.types import NS

@@ -10,6 +10,7 @@ from datetime import datetime
 
 import numpy as np
 import pytest
+
 from zennav.datasets import comma2k19, kfgins, registry, rtklibexplorer
 from zennav.datasets.errors import DataError
 from zennav.nav import earth

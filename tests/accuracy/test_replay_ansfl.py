@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+
 from zennav.datasets import registry
 from zennav.datasets.errors import DataError
 from zennav.metrics import evaluate

@@ -6,6 +6,7 @@ import copy
 
 import numpy as np
 import pytest
+
 from zennav.datasets import kfgins
 from zennav.datasets.registry import load_dataset
 from zennav.metrics import evaluate

@@ -6,8 +6,9 @@ import math
 import time
 
 import numpy as np
-from zennav import messages as M
 from zennav_harness import Collector, free_port, json_lines, wait_until
+
+from zennav import messages as M
 
 ECHO = str(__import__("pathlib").Path(__file__).with_name("echo_node.py"))
 

@@ -1,4 +1,4 @@
-"""The learning loop as services (issue 6; DESIGN.md sections 5-6): trainer (torch) -> learn/model -> predictor
+"""The learning loop as services (ARCHITECTURE.md sections 3 and 5): trainer (torch) -> learn/model -> predictor
 (numpy) <- learn/query / -> learn/correction <-> ins. Real processes, real Zenoh, no sleeps to synchronise (the
 200 Hz and 50 Hz query streams are paced by a clock; every wait is on a message or liveliness).
 
@@ -21,10 +21,11 @@ import time
 
 import numpy as np
 import pytest
+from zennav_harness import PY, Collector, Proc, free_port, wait_until
+
 from zennav import messages as M
 from zennav.learn import anfis_numpy, paramset
 from zennav.nav.learning import DRIFT_FEATURES
-from zennav_harness import PY, Collector, Proc, free_port, wait_until
 
 N_IN = len(DRIFT_FEATURES)
 NAME = "anfis-drift"

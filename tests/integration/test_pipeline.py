@@ -7,8 +7,9 @@ import re
 
 import msgpack
 import numpy as np
-from zennav import messages as M
 from zennav_harness import Collector, wait_until
+
+from zennav import messages as M
 
 OUTAGE = (200.0, 60.0)  # GNSS withheld 200..260 s
 

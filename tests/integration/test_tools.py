@@ -7,8 +7,9 @@ import signal
 
 import numpy as np
 import yaml
-from zennav.bus import Bus
 from zennav_harness import Collector, free_port, wait_until
+
+from zennav.bus import Bus
 
 
 def test_launch_waits_prefixes_restarts_and_stops_cleanly(cluster, tmp_path):
@@ -58,6 +59,7 @@ def test_launch_waits_prefixes_restarts_and_stops_cleanly(cluster, tmp_path):
 
 def test_record_mcap_and_replay_reproduce_solution(cluster, tmp_path):
     from mcap.reader import make_reader
+
     from zennav.recording import read_mcap
 
     k = cluster.keys

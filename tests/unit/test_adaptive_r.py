@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from scipy.stats import chi2
+
 from zennav.metrics import ned_errors
 from zennav.nav import earth
 from zennav.nav.adaptive_r import AdaptiveR

@@ -7,6 +7,7 @@ import msgpack
 import numpy as np
 import pytest
 from test_navigator_inputs import DT_NS, EULER0, LLH0, fix, run, static_imu
+
 from zennav.nav.aid import AidSource, Measurement
 from zennav.nav.eskf import N_STATES
 from zennav.nav.learning import LearnQuery

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+
 from zennav.metrics import ned_errors
 from zennav.nav import earth
 from zennav.nav.alignment import course_alignment, level, levelling_std, static_alignment
@@ -180,6 +181,7 @@ def test_attitude_source_sets_tilt_only_while_coarse():
 def test_cli_heading_unknown_and_adaptive_r_on_kf_gins_files(tmp_path):
     """The CLI flags reach the engine, which aligns in motion; the summary lines are printed."""
     from click.testing import CliRunner
+
     from zennav.cli import main
     from zennav.datasets import kfgins
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+
 from zennav.attitude.complementary import AdaptiveComplementaryFilter, ComplementaryConfig
 from zennav.nav.earth import G0, omega_ie_n
 from zennav.nav.rotation import euler_to_quat, quat_multiply, quat_to_dcm, quat_to_euler, rotvec_to_quat

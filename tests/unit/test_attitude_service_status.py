@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+
 from zennav import messages as M
 from zennav.attitude.complementary import AdaptiveComplementaryFilter
 from zennav.nodes.attitude import AttitudeNode, omega_in_n_of

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 from click.testing import CliRunner
+
 from zennav.cli import main
 from zennav.datasets import kfgins
 from zennav.sim.scenarios import make_dataset

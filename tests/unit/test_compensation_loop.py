@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from zennav.learn.learner import ElmanOnline
 from zennav.learn.loop import InProcessLoop, make_compensator
 from zennav.learn.settings import LearnSettings

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from zennav.nav import earth
 from zennav.nav.navigator import Navigator
 from zennav.nav.rotation import euler_to_dcm

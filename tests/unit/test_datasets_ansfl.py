@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+
 from zennav.datasets import ansfl, registry
 from zennav.datasets.errors import DataError
 from zennav.nav import earth

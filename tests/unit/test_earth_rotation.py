@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+
 from zennav.nav import earth
 from zennav.nav import rotation as rot
 

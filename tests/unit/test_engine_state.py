@@ -8,6 +8,7 @@ from dataclasses import replace
 import msgpack
 import numpy as np
 import pytest
+
 from zennav.datasets import kfgins
 from zennav.datasets.registry import load_dataset
 from zennav.nav.learning import OUTPUTS

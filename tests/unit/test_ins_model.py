@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+
 from zennav.nav import earth
 from zennav.nav.aiding import antenna_velocity, body_velocity_model, position_model, velocity_model
 from zennav.nav.eskf import ErrorStateKF, discretize, error_model, process_noise_psd

@@ -1,6 +1,7 @@
 """ANFIS: numpy predictor vs torch model, rule bases, hybrid and comparison trainers."""
 import numpy as np
 import pytest
+
 from zennav.learn import anfis_numpy as an
 from zennav.learn import paramset
 

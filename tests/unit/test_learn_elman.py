@@ -1,6 +1,7 @@
 """Elman network: online window learning, gating, state round trip."""
 import numpy as np
 import pytest
+
 from zennav.learn.elman import Elman, bipolar_sigmoid
 
 

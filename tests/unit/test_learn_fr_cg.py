@@ -1,6 +1,7 @@
 """Fletcher-Reeves CG: quadratic termination, Rosenbrock, restart schedule, direction rule."""
 import numpy as np
 import pytest
+
 from zennav.learn.fr_cg import RESTART_REASONS, fr_cg, fr_direction
 
 

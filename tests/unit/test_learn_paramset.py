@@ -3,6 +3,7 @@ import copy
 
 import numpy as np
 import pytest
+
 from zennav.learn import anfis_numpy as an
 from zennav.learn import paramset
 from zennav.learn.paramset import REASONS, ParamSetRejected

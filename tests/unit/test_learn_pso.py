@@ -1,6 +1,7 @@
 """Particle swarm optimisation."""
 import numpy as np
 import pytest
+
 from zennav.learn.pso import PSOConfig, Swarm, pso_minimize
 
 

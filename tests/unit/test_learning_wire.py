@@ -6,6 +6,7 @@ import logging
 
 import numpy as np
 import pytest
+
 from zennav import messages as M
 from zennav.learn import anfis_numpy, paramset
 from zennav.nav.learning import BODY_FEATURES, DRIFT_FEATURES, LearnQuery, LearnSample

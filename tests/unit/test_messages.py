@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import msgpack
 import numpy as np
 import pytest
+
 from zennav import messages as M
 from zennav.nav.types import InitialState, NavConfig
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from zennav.nav import earth
 from zennav.nav.navigator import Navigator
 from zennav.nav.rotation import euler_to_dcm

@@ -1,5 +1,5 @@
 """The project installs as one import root, `zennav`, assembled from the user's shared/ and services/
-folders, and never as top-level `shared` or `services` packages (DESIGN.md section 2)."""
+folders, and never as top-level `shared` or `services` packages (ARCHITECTURE.md section 6)."""
 from __future__ import annotations
 
 import subprocess

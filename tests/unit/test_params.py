@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+
 from zennav.nav.types import FixType, ImuNoise, NavConfig
 from zennav.params import (
     FILTER,
@@ -99,6 +100,7 @@ def test_replay_reads_the_same_file(tmp_path):
     """zennav replay --params FILE runs the filter of FILE (here a tighter GNSS gate changes the solution);
     without --params it is deploy/ins.yaml, i.e. the loader's NavConfig."""
     from click.testing import CliRunner
+
     from zennav.cli import main
 
     tight = tmp_path / "tight.yaml"

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from zennav.nav import earth
 from zennav.nav.rotation import (
     dcm_to_quat,

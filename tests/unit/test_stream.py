@@ -8,6 +8,7 @@ import logging
 
 import numpy as np
 import pytest
+
 from zennav import messages as M
 from zennav.datasets.registry import load_dataset
 from zennav.replay import run_replay, sensor_events

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from zennav import messages as M
 
 REPO = Path(__file__).resolve().parents[2]

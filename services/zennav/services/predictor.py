@@ -1,4 +1,4 @@
-"""predictor service (issue 6, DESIGN.md section 5): the predictor core of the learning loop on the bus
+"""predictor service (ARCHITECTURE.md section 3): the predictor core of the learning loop on the bus
 (zennav.learn.predictor_core.PredictorCore, the same one the in-process loop of `zennav replay --compensation`
 runs): holds the live parameter set of each target variant, an ANFIS or an Elman network (numpy only: this process
 never imports torch), swaps in a validated newer one atomically between two queries, and answers every learn/query
@@ -42,6 +42,7 @@ import time
 from collections import deque
 
 import numpy as np
+
 from zennav import messages as M
 from zennav.learn.predictor_core import PredictorCore
 from zennav.learn.settings import LearnSettings

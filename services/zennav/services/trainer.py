@@ -1,4 +1,4 @@
-"""trainer service (issue 6, DESIGN.md sections 5 and 6): the learner of the learning loop on the bus. It collects
+"""trainer service (ARCHITECTURE.md sections 3 and 5): the learner of the learning loop on the bus. It collects
 the ins's training samples per target variant, fits on the schedule of zennav.learn.learner (the same Learner, with
 the same LearnSettings defaults, that the in-process loop of `zennav replay --compensation` runs) and publishes
 versioned parameter sets. --model anfis (default): ANFIS on the newest --window samples, premises by hybrid LSE +

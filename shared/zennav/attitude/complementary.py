@@ -1,6 +1,6 @@
 """Seed 000's adaptive complementary attitude filter with PI feedback and accelerometer rejection.
 
-Frames (DESIGN.md section 3): n = NED, b = forward-right-down; ``q_nb`` (scalar first) maps b to n.
+Frames (README.md, Conventions): n = NED, b = forward-right-down; ``q_nb`` (scalar first) maps b to n.
 Inputs: gyro rate ``omega_ib_b`` [rad/s], specific force ``f_b`` [m/s^2] (``[0, 0, -g]`` level at
 rest), optionally the rate of n w.r.t. the inertial frame ``omega_in_n = omega_ie_n + omega_en_n``
 [rad/s] from :mod:`zennav.nav.earth` when the ins service supplies position and velocity.
@@ -47,6 +47,7 @@ from dataclasses import dataclass, fields
 from itertools import repeat
 
 import numpy as np
+
 from zennav.nav import alignment
 from zennav.nav.earth import G0
 from zennav.nav.rotation import euler_to_quat

@@ -65,6 +65,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.signal import savgol_filter
+
 from zennav.datasets.errors import DataError, read_table, read_text
 from zennav.nav import earth
 from zennav.nav.rotation import euler_to_dcm, rotvec_to_dcm, wrap_angle

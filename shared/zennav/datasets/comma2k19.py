@@ -19,6 +19,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+
 from zennav.datasets.errors import DataError, existing_file
 from zennav.nav import earth
 from zennav.nav.rotation import dcm_to_euler, quat_to_dcm, wrap_angle

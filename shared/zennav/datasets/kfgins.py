@@ -23,6 +23,7 @@ from typing import Literal, overload
 
 import numpy as np
 import yaml
+
 from zennav.datasets.errors import DataError, read_table, read_text
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.signal import butter, filtfilt
+
 from zennav.datasets.errors import DataError, existing_file, read_table
 from zennav.nav import earth
 from zennav.nav.alignment import level

@@ -1,4 +1,4 @@
-"""The learning loop in one process (DESIGN.md section 5 without transport): the trainer's Learner and the
+"""The learning loop in one process (ARCHITECTURE.md section 3, without transport): the trainer's Learner and the
 predictor's PredictorCore wired directly, with the same settings (LearnSettings), the same fit points and the same
 answers as trainer + predictor over the bus in lockstep. What ``zennav replay --compensation`` and the demo use.
 

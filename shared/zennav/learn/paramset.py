@@ -1,4 +1,4 @@
-"""Versioned parameter sets of the learned models (DESIGN.md sec. 5): build, encode, checksum, validate.
+"""Versioned parameter sets of the learned models (ARCHITECTURE.md section 3): build, encode, checksum, validate.
 numpy + msgpack only.
 
 Message (msgpack-friendly dict):

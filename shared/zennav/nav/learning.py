@@ -1,4 +1,4 @@
-"""What the navigation engine gives to and takes from the learned INS-error models (DESIGN.md section 5).
+"""What the navigation engine gives to and takes from the learned INS-error models (shared/ARCHITECTURE.md section 3).
 
 Four target variants; the first three have N and E components:
 - "position" (seed 000): the filter's position correction at each fused GNSS fix, as a rate over the

@@ -1,4 +1,4 @@
-"""Rotations in the conventions of DESIGN.md section 3.
+"""Rotations in the conventions of README.md (Conventions).
 
 - ``C_ab`` maps frame-b coordinates to frame a: ``v_a = C_ab @ v_b``.
 - Quaternions are scalar first, Hamilton product; ``q_ab`` represents the same rotation as ``C_ab``.

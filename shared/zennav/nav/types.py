@@ -1,6 +1,6 @@
 """Plain data containers shared by the core, the loaders, the simulator and the services.
 
-Conventions (DESIGN.md section 3): n = NED, b = forward-right-down, SI units and radians,
+Conventions (README.md): n = NED, b = forward-right-down, SI units and radians,
 times are integer nanoseconds of GPS time (``t_ns``) in the dataset's own reference
 (seconds of week for KF-GINS files, seconds since the GPS epoch otherwise).
 """

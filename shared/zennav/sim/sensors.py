@@ -1,6 +1,6 @@
 """Sensors riding a Trajectory: ideal and noisy IMU increments, GNSS antenna fixes.
 
-Frames and units (DESIGN.md section 3): n = NED, b = FRD, SI and radians; times t_s in seconds since the
+Frames and units (README.md, Conventions): n = NED, b = FRD, SI and radians; times t_s in seconds since the
 trajectory start, message times t_ns in integer GPS nanoseconds with t0_ns the time of t_s = 0.
 
 Ideal IMU: omega_ib_b = omega_nb_b + C_bn (omega_ie_n + omega_en_n) and

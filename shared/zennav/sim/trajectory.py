@@ -1,6 +1,6 @@
 """Smooth trajectories with exact truth, evaluated at arbitrary times.
 
-Frames and units (DESIGN.md section 3): n = NED, b = FRD, SI and radians, Euler ZYX (roll, pitch, yaw).
+Frames and units (README.md, Conventions): n = NED, b = FRD, SI and radians, Euler ZYX (roll, pitch, yaw).
 Time ``t`` is in seconds since the trajectory start (t = 0 at ``start_llh``).
 
 Construction
