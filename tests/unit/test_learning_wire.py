@@ -76,7 +76,7 @@ def test_learn_query_and_correction_messages_validate():
 
 
 def test_predictor_swaps_validated_sets_and_keeps_the_live_one_on_rejection():
-    from zennav.services.predictor import PredictorNode
+    from zennav.nodes.predictor import PredictorNode
 
     out, bus_rej = [], []
     node = PredictorNode(out.append, LOG, bus_reject=lambda k, r: bus_rej.append(r))
@@ -101,7 +101,7 @@ def test_predictor_swaps_validated_sets_and_keeps_the_live_one_on_rejection():
 
 
 def test_predictor_refuses_queries_outside_the_training_range():
-    from zennav.services.predictor import PredictorNode
+    from zennav.nodes.predictor import PredictorNode
 
     out = []
     node = PredictorNode(out.append, LOG, max_domain_excess=0.5)
@@ -232,8 +232,8 @@ def _samples(n, target="drift", seed=0, t0=0):
 def test_trainer_schedule_in_sample_counts_and_published_set_accepted_by_the_predictor():
     pytest.importorskip("torch")
     from zennav.learn.settings import LearnSettings
-    from zennav.services.predictor import PredictorNode
-    from zennav.services.trainer import TrainerNode
+    from zennav.nodes.predictor import PredictorNode
+    from zennav.nodes.trainer import TrainerNode
 
     published = []
     node = TrainerNode(lambda name, msg: published.append((name, msg)), LOG, ("drift",),
@@ -274,8 +274,8 @@ def test_trainer_and_in_process_loop_make_the_same_sets_and_answers(compensation
     if compensation != "elman":
         pytest.importorskip("torch")
     from zennav.learn.loop import make_compensator
-    from zennav.services.predictor import PredictorNode
-    from zennav.services.trainer import TrainerNode
+    from zennav.nodes.predictor import PredictorNode
+    from zennav.nodes.trainer import TrainerNode
 
     loop = make_compensator(compensation, "body_velocity", seed=3)
     settings = loop.settings.with_(min_samples=120, retrain_samples=150, max_epochs=4)
@@ -323,8 +323,8 @@ def test_body_velocity_sets_have_three_outputs_end_to_end():
     the wrong output count for its target is refused."""
     pytest.importorskip("torch")
     from zennav.learn.settings import LearnSettings
-    from zennav.services.predictor import PredictorNode
-    from zennav.services.trainer import TrainerNode
+    from zennav.nodes.predictor import PredictorNode
+    from zennav.nodes.trainer import TrainerNode
 
     published = []
     node = TrainerNode(lambda name, msg: published.append(msg), LOG, ("body_velocity",),
@@ -356,8 +356,8 @@ def test_elman_trainer_publishes_once_ready_and_the_predictor_runs_the_same_netw
     predictor's answers are the trainer's network stepped from the published context."""
     from zennav.learn import elman
     from zennav.learn.settings import LearnSettings
-    from zennav.services.predictor import PredictorNode
-    from zennav.services.trainer import TrainerNode
+    from zennav.nodes.predictor import PredictorNode
+    from zennav.nodes.trainer import TrainerNode
 
     published = []
     node = TrainerNode(lambda name, msg: published.append((name, msg)), LOG, ("drift",),

@@ -40,123 +40,17 @@ from __future__ import annotations
 import argparse
 import sys
 import threading
-from collections import Counter
 from typing import TYPE_CHECKING
 
-from zennav import messages as M
-from zennav.learn.learner import Learner
 from zennav.learn.settings import MODELS, OPTIMIZERS, LearnSettings
-from zennav.nav.learning import FEATURES, OUTPUTS, TARGETS
+from zennav.nav.learning import TARGETS
+from zennav.nodes.trainer import TrainerNode
 from zennav.service import ServiceRunner, add_bus_args
 
 if TYPE_CHECKING:
     from zennav.bus import Publisher
 
 DEFAULTS = LearnSettings()
-
-
-class TrainerNode:
-    """The transport-free part of the trainer: ``on_sample(msg)`` and ``on_query(msg)`` from the bus threads,
-    ``wait_due()`` / ``train(target)`` from the training thread; ``publish(name, msg)`` sends a model_params
-    message."""
-
-    def __init__(self, publish, log, targets=("body_velocity",), settings: LearnSettings = DEFAULTS, *,
-                 prefix: str | None = None, device=None, first_version: int = 1):
-        self.publish = publish
-        self.log = log
-        self.settings = settings
-        self.targets = tuple(targets)
-        prefix = prefix or settings.model
-        self.learners = {t: Learner(t, settings, name=M.check_chunk(f"{prefix}-{t}", "model name"), device=device)
-                         for t in self.targets}
-        self.names = {t: lr.name for t, lr in self.learners.items()}
-        self.device = device
-        self.cv = threading.Condition()
-        self.version = {t: int(first_version) - 1 for t in self.targets}
-        self.counts: Counter[str] = Counter()
-        self.busy = ""
-
-    # ------------------------------------------------------------------ input
-    def on_sample(self, msg: dict) -> None:
-        t = msg["variant"]
-        if t not in self.learners:
-            self.counts["ignored_variant"] += 1
-            return
-        if len(msg["features"]) != len(FEATURES[t]) or len(msg["target"]) != len(OUTPUTS[t]):
-            self.counts["ignored_shape"] += 1
-            return
-        self.learners[t].add(msg["t_ns"], msg["features"], msg["target"])
-        with self.cv:
-            self.cv.notify()
-
-    def on_query(self, msg: dict) -> None:
-        """A learn_query: its n_samples asks for a set through exactly that many samples of its variant."""
-        t, n = msg["target"], msg.get("n_samples")
-        if t not in self.learners:
-            return
-        if n is None:
-            self.counts["queries_without_count"] += 1
-            return
-        self.learners[t].request(int(n))
-        with self.cv:
-            self.cv.notify()
-
-    def seen_version(self, target: str, version: int) -> None:
-        """A set of this model already exists on the bus with this version: continue above it."""
-        with self.cv:
-            self.version[target] = max(self.version[target], int(version))
-
-    # ------------------------------------------------------------------ schedule
-    def due(self) -> list[str]:
-        return [t for t, lr in self.learners.items() if lr.due() is not None]
-
-    def wait_due(self, tick: float = 0.5) -> list[str]:
-        """The targets with a fit due, after waiting up to tick seconds for one (the caller loops)."""
-        with self.cv:
-            due = self.due()
-            if not due:
-                self.cv.wait(tick)
-                due = self.due()
-        return due
-
-    def train(self, target: str) -> dict | None:
-        """Fit the target's next due point and publish its set; returns the model_params message published
-        (None: nothing due, or no set at that point, counted by the learner)."""
-        lr = self.learners[target]
-        n = lr.due()
-        if n is None:
-            return None
-        with self.cv:
-            version = self.version[target] + 1
-        self.busy = f"fitting {target} through {n} samples"
-        try:
-            ps = lr.fit(n, version)
-        finally:
-            self.busy = ""
-        if ps is None:
-            self.log.warning("no %s set through %d samples (%s)", lr.name, n, lr.last_error or "model not ready")
-            return None
-        with self.cv:
-            self.version[target] = max(self.version[target], version)
-        msg = M.model_params_msg(ps)
-        self.publish(lr.name, msg)
-        m = ps["metrics"]
-        self.log.info("published %s v%d through %d samples (%d used, %s), 1-sigma %s", lr.name, version, n,
-                      m["samples"], m["method"], lr.last["sigma"])
-        return msg
-
-    # ------------------------------------------------------------------ status
-    def counters(self) -> dict:
-        c = dict(self.counts)
-        for t, lr in self.learners.items():
-            c.update(lr.counters())
-            c[f"version_{t}"] = self.version[t]
-        return c
-
-    def detail(self) -> str:
-        s = "; ".join(f"{lr.name} v{lr.last['version']} (through {lr.last['samples_seen']} samples, 1-sigma "
-                      f"{lr.last['sigma']})" for lr in self.learners.values() if lr.last) or "no set published yet"
-        return f"{s}; {self.settings.label}, device {self.device or 'cpu'}" + (f"; {self.busy}" if self.busy else "")
 
 
 def build_parser() -> argparse.ArgumentParser:
