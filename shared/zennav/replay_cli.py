@@ -8,27 +8,26 @@ from dataclasses import replace
 from pathlib import Path
 
 import click
-import numpy as np
 
-from .datasets.errors import DataError
-from .metrics import evaluate, format_table, write_outputs
-from .nav.learning import TARGETS
-from .params import ParamError, load_filter_params, nav_config
-from .replay import parse_outage, parse_outage_every, run_replay
+# zennav.nav.learning.TARGETS, written out so that the command line starts without the core (a test ties them)
+TARGETS = ("position", "velocity", "drift", "body_velocity")
 
 
-def _click_parser(parse):
-    """A zennav.replay outage parser as a click callback value parser (ValueError -> BadParameter)."""
+def _click_parser(name: str):
+    """zennav.replay's outage parser `name` as a click value parser (ValueError -> BadParameter), imported when a
+    value is parsed."""
     def conv(text: str):
+        from . import replay
+
         try:
-            return parse(text)
+            return getattr(replay, name)(text)
         except ValueError as e:
             raise click.BadParameter(str(e)) from None
     return conv
 
 
-_parse_outage = _click_parser(parse_outage)
-_parse_every = _click_parser(parse_outage_every)
+_parse_outage = _click_parser("parse_outage")
+_parse_every = _click_parser("parse_outage_every")
 
 
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
@@ -37,8 +36,12 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
     seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins)."""
+    from .datasets.errors import DataError
     from .datasets.registry import load_dataset
     from .learn.loop import make_compensator
+    from .metrics import evaluate, format_table, write_outputs
+    from .params import ParamError, load_filter_params, nav_config
+    from .replay import run_replay
 
     try:
         ds = load_dataset(spec)
@@ -67,6 +70,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
 
 def _alignment_summary(status: dict, t0_ns: int) -> str:
     """Alignment and measurement-noise lines of the engine's final status (times in s from the run start)."""
+    import numpy as np
+
     al = status["alignment"]
     times = ", ".join(f"{k} at {(v - t0_ns) / 1e9:.2f} s" for k, v in al["times_ns"].items())
     lines = [(f"alignment: {al['state']} ({al['method'] or 'not yet'}; {times}), heading 1-sigma "

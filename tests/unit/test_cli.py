@@ -61,3 +61,28 @@ def test_user_mistakes_give_one_line_errors(tmp_path):
         assert needle in res.output, (args, res.output)
         assert "Traceback" not in res.output and not isinstance(res.exception, (TypeError, ValueError, KeyError))
 
+
+
+def test_command_line_choices_are_the_cores():
+    """The choices the command line writes out (so that it starts without importing the core) are the core's."""
+    from zennav import demo_cli, replay_cli
+    from zennav.learn.loop import CHOICES
+    from zennav.learn.settings import COMPENSATIONS
+    from zennav.nav.learning import TARGETS
+
+    assert replay_cli.TARGETS == TARGETS
+    assert tuple(demo_cli.COMPENSATIONS) == tuple(COMPENSATIONS)
+    replay = next(p for p in replay_cli.replay.params if p.name == "compensation")
+    assert tuple(replay.type.choices) == CHOICES
+
+
+def test_zennav_help_imports_no_numerical_library():
+    """`zennav --help` loads the command line only: no numpy, scipy, torch or zenoh (start-up time)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom click.testing import CliRunner\nfrom zennav.cli import main\n"
+            "r = CliRunner().invoke(main, ['--help'])\nassert r.exit_code == 0, r.output\n"
+            "print(sorted(m for m in ('numpy', 'scipy', 'torch', 'zenoh') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out

@@ -166,3 +166,14 @@ def test_schmidt_update_corrects_only_the_chosen_states():
     res = kf.update(np.array([3.0, -2.0]), H, np.eye(2), gate=None, gain_states=slice(0, 3))
     assert res.fused and np.all(res.dx[3:] == 0.0) and np.any(res.dx[:3] != 0.0)
     assert np.linalg.eigvalsh(kf.P).min() > 0.0
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 6, 12])
+@pytest.mark.parametrize("p", [0.9, 0.95, 0.99, 0.9973, 0.999, 0.9999])
+def test_chi2_quantile_is_scipy_stats_chi2_ppf_bit_for_bit(p, dof):
+    """The gate's chi-square quantile (computed without importing scipy.stats) equals scipy's, to the bit."""
+    from scipy.stats import chi2
+
+    from zennav.nav.eskf import chi2_quantile
+
+    assert chi2_quantile(p, dof) == float(chi2.ppf(p, dof))

@@ -33,7 +33,8 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
-from scipy.stats import chi2
+
+from .eskf import chi2_quantile
 
 
 class AdaptiveR:
@@ -54,7 +55,7 @@ class AdaptiveR:
         self.window = int(window)
         self.forgetting = float(forgetting)
         self.floor, self.ceiling = float(floor), float(ceiling)
-        self.threshold = float(chi2.ppf(test_probability, dim))
+        self.threshold = chi2_quantile(test_probability, dim)
         self.k = round(1.0 / (1.0 - forgetting)) if prior_count is None else int(prior_count)
         self.scale = np.eye(dim)  # R~ = L^-1 R L^-T
         self._C: deque[np.ndarray] = deque(maxlen=self.window)

@@ -19,12 +19,20 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import gammaincinv
 
 from . import earth
 from .types import ImuNoise, InitialState, NavConfig
 
 N_STATES = 15
 POS, VEL, ATT, BG, BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """The chi-square quantile of probability p with dof degrees of freedom (the innovation gate):
+    2 P^-1(dof/2, p), P the regularised lower incomplete gamma function; the same float operations as
+    scipy.stats.chi2.ppf, without importing scipy.stats (slow to import)."""
+    return float(2.0 * gammaincinv(dof / 2.0, p))
 
 
 # Positions of the entries of F that error_model fills, in the order it lists their values (row, column).

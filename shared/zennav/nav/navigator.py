@@ -23,7 +23,6 @@ from collections import Counter
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import chi2
 
 from . import earth
 from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, GnssPosition, Measurement, build_sources
@@ -36,6 +35,7 @@ from .eskf import (
     POS,
     VEL,
     ErrorStateKF,
+    chi2_quantile,
     discretize,
     error_model,
     initial_covariance,
@@ -277,7 +277,7 @@ class Navigator:
         gate = self._gates.get(dof, 0.0)
         if gate == 0.0:
             p = self.config.gate_probability
-            gate = self._gates[dof] = float(chi2.ppf(p, dof)) if p > 0 else None
+            gate = self._gates[dof] = chi2_quantile(p, dof) if p > 0 else None
         return gate
 
     def propagate_covariance(self) -> None:
