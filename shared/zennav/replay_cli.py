@@ -32,10 +32,11 @@ _parse_every = _click_parser("parse_outage_every")
 
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
                    target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None,
-                   seed: int = 0, params: Path | None = None) -> dict:
+                   seed: int = 0, params: Path | None = None, nhc: bool | None = None) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
-    seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins)."""
+    seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins); nhc:
+    override the parameter file's non-holonomic constraint (None: keep)."""
     from .datasets.errors import DataError
     from .datasets.registry import load_dataset
     from .learn.loop import make_compensator
@@ -52,6 +53,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.initial = replace(ds.initial, heading_known=False)
     if adaptive_r is not None:
         ds.config = ds.config.with_(adaptive_r=adaptive_r)
+    if nhc is not None:
+        ds.config = ds.config.with_(nhc=nhc)
     res = run_replay(ds, outages=list(outages), outage_every=every,
                      compensator=make_compensator(compensation, target, seed))
     metrics = evaluate(ds, res)
@@ -132,9 +135,12 @@ def _setup_logging(verbose: int) -> None:
               help="The ins's filter parameter file (human units) [deploy/ins.yaml]: the same filter as zennav-ins.")
 @click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,
               help="Innovation-based adaptive GNSS measurement noise (seed 001); default: the parameter file's (off).")
+@click.option("--nhc/--no-nhc", "nhc", default=None,
+              help="Non-holonomic constraint of a land vehicle (no sideslip, no jump); default: the parameter "
+                   "file's (off).")
 @_with_outage_opts
-def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, outages, every, out, as_json, compensation,
-           target, seed, verbose):
+def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, outages, every, out, as_json,
+           compensation, target, seed, verbose):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
@@ -145,4 +151,4 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, outages
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
-                   heading_unknown, adaptive_r, seed, params)
+                   heading_unknown, adaptive_r, seed, params, nhc)

@@ -173,3 +173,11 @@ def test_a_state_of_another_configuration_is_refused(car):
     state = Navigator(car.config.with_(learning=True), car.initial).get_state()
     with pytest.raises(ValueError):
         Navigator(car.config, car.initial).set_state(state)
+
+
+def test_restore_with_the_non_holonomic_constraint(car):
+    """The constraint's own clock (its next update time) is part of the state: restored mid-period inside an
+    outage, the run continues exactly."""
+    config = car.config.with_(nhc=True, nhc_every_s=0.1)
+    nav, state = assert_continues_exactly(car, config, car.initial, 9000, 6511, outages=[(30.0, 15.0)])
+    assert state["sources"]["nhc"]["next_ns"] > 0 and nav.counters["nhc_fused"] > 0
