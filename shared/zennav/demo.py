@@ -41,7 +41,7 @@ import numpy as np
 from .launch import Launcher, load_launch
 from .metrics import antenna_llh, evaluate, format_table, ned_errors, write_outputs
 from .nav.types import NS
-from .replay import ReplayResult, run_replay
+from .replay import ReplayResult, run_end_ns, run_replay
 
 if TYPE_CHECKING:  # zenoh is imported when the demo opens its bus
     from .bus import Bus
@@ -211,11 +211,6 @@ def _background(fn: Callable[[], _T]) -> Callable[[], _T]:
         return box["value"]
 
     return result
-
-
-def _ds_duration_s(ds) -> float:
-    end = ds.imu.t_ns[-1] if ds.config.end_t_ns is None else min(ds.imu.t_ns[-1], ds.config.end_t_ns)
-    return float(end - ds.initial.t_ns) / NS
 
 
 def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: float) -> tuple[Path, _Collector]:
@@ -505,7 +500,7 @@ def run_demo(out: Path, spec: DemoSpec, launch_file: Path = DEMO_LAUNCH) -> None
     ds = load_dataset(spec.dataset, **spec.options)
     ds.config = nav_config(ds.config, load_filter_params(None))  # the ins's filter (deploy/ins.yaml)
     settings = compensation_settings(spec.compensation, spec.seed)
-    duration_s = _ds_duration_s(ds)
+    duration_s = (run_end_ns(ds) - int(ds.initial.t_ns)) / NS
     windows = ", ".join(f"{s:g}..{s + d:g} s" for s, d in spec.outages)
     if spec.every:
         windows = ", ".join(filter(None, [windows, f"{spec.every[1]:g} s every {spec.every[0]:g} s from "

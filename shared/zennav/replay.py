@@ -81,6 +81,12 @@ def outage_windows(
     return sorted((a, min(b, t_end_ns)) for a, b in wins if a < t_end_ns)
 
 
+def run_end_ns(ds: Dataset) -> int:
+    """Time of the last IMU sample a run of ds processes [ns]: the last sample, or config.end_t_ns before it."""
+    t_last = ds.imu.t_ns[-1]
+    return int(t_last if ds.config.end_t_ns is None else min(t_last, ds.config.end_t_ns))
+
+
 def sensor_events(
     ds: Dataset,
     outages: Sequence[tuple[float, float]] = (),
@@ -94,7 +100,7 @@ def sensor_events(
     t_imu = ds.imu.t_ns
     t0 = int(ds.initial.t_ns)
     k0 = int(np.searchsorted(t_imu, t0, side="right"))
-    t_last = int(t_imu[-1] if ds.config.end_t_ns is None else min(t_imu[-1], ds.config.end_t_ns))
+    t_last = run_end_ns(ds)
     k1 = int(np.searchsorted(t_imu, t_last, side="right"))
     windows = outage_windows(t0, t_last, list(outages), outage_every)
     t_g = ds.gnss.t_ns
