@@ -35,12 +35,16 @@ def _stream(duration_s: float, heading_unknown: bool = False):
             for kind, m in stream_messages(ds, windows, events)]
 
 
-def _reference(msgs, cfg, w_in):
+def _reference(msgs, cfg, out):
+    """The core's batch over the stream's IMU samples with the omega_in_n, a_b and v_b the node published."""
     imu = [m for _, m in msgs if m["schema"] == "imu"]
     dt = np.array([m["dt_ns"] for m in imu], dtype=float) / 1e9
     omega = np.array([m["dtheta"] for m in imu]) / dt[:, None]
     f = np.array([m["dvel"] for m in imu]) / dt[:, None]
-    return imu, AdaptiveComplementaryFilter(cfg).batch(omega, f, dt=dt, omega_in_n=w_in)
+    w_in = np.array([o["omega_in_n"] for o in out])
+    a_b, v_b = (None, None) if out[0]["accel_b"] is None else (np.array([o[k] for o in out])
+                                                              for k in ("accel_b", "vel_b"))
+    return imu, AdaptiveComplementaryFilter(cfg).batch(omega, f, dt=dt, omega_in_n=w_in, a_b=a_b, v_b=v_b)
 
 
 def test_attitude_node_equals_core_batch_bit_for_bit_in_any_arrival_order():
@@ -57,13 +61,13 @@ def test_attitude_node_equals_core_batch_bit_for_bit_in_any_arrival_order():
         blk = tail[i:i + 8]
         rnd.shuffle(blk)
         tail[i:i + 8] = blk
-    sol = {"t_ns": 0, "llh": [0.53, 1.99, 40.0], "v_n": [10.0, -5.0, 0.1]}
+    sol = {"t_ns": 0, "llh": [0.53, 1.99, 40.0], "v_n": [10.0, -5.0, 0.1], "q_nb": [1.0, 0.0, 0.0, 0.0]}
     for n, (key, m) in enumerate(head + tail):
         if n == 500:  # a solution arrives: its sample time must be near the IMU's for it to be used
             sol["t_ns"] = m["t_ns"]
             node.on_solution(sol)
         node.on_sensor(key, m)
-    imu, ref = _reference(msgs, cfg, np.array([o["omega_in_n"] for o in out]))
+    imu, ref = _reference(msgs, cfg, out)
     assert len(out) == len(imu) == 4000 and node.follower.done
     assert [o["t_ns"] for o in out] == [m["t_ns"] for m in imu]
     assert np.array_equal(np.array([o["q_nb"] for o in out]), ref.q_nb)

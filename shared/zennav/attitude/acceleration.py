@@ -60,7 +60,7 @@ class AccelerationReference:
     ``counts``: velocity (accepted), not_finite, not_increasing, queue_full (rejected), gap (difference restarted),
     applied, stale (IMU samples with an estimate: used / too old), none (IMU samples before any estimate)."""
 
-    def __init__(self, min_span_s: float = 0.2, max_age_s: float = 1.5, queue: int = 4096):
+    def __init__(self, min_span_s: float = 0.1, max_age_s: float = 1.5, queue: int = 4096):
         if not 0.0 < min_span_s < max_age_s:
             raise ValueError("need 0 < min_span_s < max_age_s")
         self.min_span_ns = int(round(min_span_s * NS))
@@ -104,11 +104,14 @@ class AccelerationReference:
             inv = NS / (t_ns - t0)
             self._est = (t_ns, v, ((v[0] - v0[0]) * inv, (v[1] - v0[1]) * inv, (v[2] - v0[2]) * inv))
 
-    def at(self, t_ns: int, omega_b) -> tuple | None:
+    def at(self, t_ns: int, omega_b, known_ns: int | None = None) -> tuple | None:
         """(a_b, v_b) at IMU time t_ns: a_b = dv_b/dt + omega_b x v_b [m/s^2] and the extrapolated v_b [m/s];
-        None when there is no estimate yet, or it is stale."""
+        None when there is no estimate yet, or it is stale. Velocity samples up to known_ns (default t_ns) are
+        taken: a later known_ns lets a held levelling window use the estimate known at its end (whose difference
+        spans the window), v_b extrapolated back."""
         q = self._queue
-        while q and q[0][0] <= t_ns:
+        known = t_ns if known_ns is None else known_ns
+        while q and q[0][0] <= known:
             self._reach(*q.popleft())
         est = self._est
         if est is None:
