@@ -92,19 +92,19 @@ def main(argv=None) -> None:
         msgs = stream(ds)
         t_imu = np.array([m["t_ns"] for _, m in msgs if m["schema"] == "imu"])
         truth = ds.truth
-        has_att = truth is not None and getattr(truth, "euler", None) is not None
+        truth_euler = None if truth is None else truth.euler
         print(f"\n{spec}: {len(t_imu)} IMU samples, {(t_imu[-1] - t_imu[0]) / 1e9:.0f} s; reference: "
-              f"{'truth attitude' if has_att else 'the ins attitude (nav/solution)'}")
+              f"{'the truth attitude' if truth_euler is not None else 'the ins attitude (nav/solution)'}")
         print(f"{'velocity source':<16}{'RMS':>8}{'p99':>8}{'max':>8}{'max after':>11}   counters (IMU samples)")
         for source in SOURCES:
             t0 = time.perf_counter()
             att, ins_q, c = run(msgs, source)
             wall = time.perf_counter() - t0
             q_est = np.array([att[t] for t in t_imu])
-            if has_att:
+            if truth is not None and truth_euler is not None:
                 idx = np.searchsorted(truth.t_ns, t_imu)
                 assert np.array_equal(truth.t_ns[idx], t_imu), "truth not at the IMU samples"
-                q_ref = np.array([euler_to_quat(e) for e in truth.euler[idx]])
+                q_ref = np.array([euler_to_quat(e) for e in truth_euler[idx]])
             else:
                 q_ref = np.array([ins_q[t] for t in t_imu])
             e = tilt_error_deg(q_est, q_ref)
