@@ -234,8 +234,9 @@ def test_acceleration_compensation_holds_the_tilt_the_filter_alone_loses():
 
 
 def test_acceleration_reference_differences_holds_and_rejects():
-    """dv_b/dt over the newest span >= min_span, omega x v_b with v_b extrapolated; a sample waits until the IMU
-    reaches its time; stale estimates, gaps, non-finite and non-increasing samples are counted, never used."""
+    """dv_b/dt over the newest span >= min_span, extrapolated with the jerk between differences >= min_span apart,
+    omega x v_b with v_b extrapolated; a sample waits until the IMU reaches its time; stale estimates, gaps,
+    non-finite and non-increasing samples are counted, never used."""
     from zennav.attitude.acceleration import AccelerationReference, body_velocity_of_solution, body_velocity_of_speed
 
     s = 1_000_000_000
@@ -255,6 +256,13 @@ def test_acceleration_reference_differences_holds_and_rejects():
     assert ref.add(5 * s, (20.0, 0.0, 0.0)) == ""  # 4.7 s after the last: a gap, no difference across it
     assert ref.at(5 * s, ZERO) is None and ref.counts["gap"] == 1
     assert ref.counts["velocity"] == 5 and ref.counts["applied"] == 2
+    # constant jerk (1 m/s^3 forward from rest): the differences are exact at their midpoints, the jerk from two of
+    # them min_span apart, so 0.3 s after the last sample a = 1.3 m/s^2 and v = 0.845 m/s exactly
+    ref = AccelerationReference(min_span_s=0.2, max_age_s=1.0, jerk=True)
+    for k in range(11):
+        ref.add(k * s // 10, (0.5 * (k / 10) ** 2, 0.0, 0.0))
+    a_b, v_b = ref.at(13 * s // 10, ZERO)
+    assert a_b == pytest.approx((1.3, 0.0, 0.0), abs=1e-9) and v_b == pytest.approx((0.845, 0.0, 0.0), abs=1e-9)
     # sources: v_b = C_bn v_n with the ins attitude (heading 90 deg: north velocity is to the left), or speed
     q_east = euler_to_quat((0.0, 0.0, 90 * DEG))
     assert body_velocity_of_solution(q_east, (3.0, 0.0, 0.0)) == pytest.approx((0.0, -3.0, 0.0), abs=1e-12)

@@ -21,10 +21,11 @@ reproduce the output whatever the arrival timing of the solutions was.
 Gravity reference (zennav.attitude.acceleration): with a velocity source the filter takes the vehicle's own
 acceleration out of the specific force, ``f_b - a_b`` with ``a_b = dv_b/dt + omega x v_b``. Sources: ``ins`` (the
 default: nav/solution's v_n resolved in b with the solution's q_nb), ``gnss`` (the GNSS fixes' speed along the
-forward axis, for when no ins runs), ``none`` (the accelerometer alone, as before). Velocity samples are taken in
-sample-time order as the IMU stream reaches them; an estimate older than ``accel_max_age_s`` at an IMU sample is not
-used (counted as stale). The levelling window is compensated with the estimate known at its end. The a_b and v_b
-applied are published with each sample (zeros when none was fresh), so a consumer can reproduce the output.
+forward axis, for when no ins runs; its differences extrapolated with the jerk), ``none`` (the accelerometer
+alone, as before). Velocity samples are taken in sample-time order as the IMU stream reaches them; an estimate
+older than ``accel_max_age_s`` at an IMU sample is not used (counted as stale). The levelling window is
+compensated with the estimate known at its end. The a_b and v_b applied are published with each sample (zeros
+when none was fresh), so a consumer can reproduce the output.
 """
 from __future__ import annotations
 
@@ -123,7 +124,8 @@ class AttitudeNode:
         self._levelled, self._held, self._held_s = False, [], 0.0
         self._rate = None
         self._bias = ZERO3
-        self.accel = None if self.velocity_source == "none" else AccelerationReference(*self.accel_span_age)
+        self.accel = None if self.velocity_source == "none" else AccelerationReference(
+            *self.accel_span_age, jerk=self.velocity_source == "gnss")
         self.log.info("stream %s from %s%s: filter reset; gravity reference: %s", start["dataset"], start["src"],
                       " (joined late: levelling from here)" if join else "", self.reference())
         self.on_state(f"filtering stream {start['dataset']} from {start['src']}; gravity reference: "
