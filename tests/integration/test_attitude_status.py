@@ -18,9 +18,11 @@ def _once(cluster, name: str) -> dict:
 
 def test_attitude_service_equals_core_batch_with_ins_rate_and_monitor_shows_it(cluster):
     """60 s of the simulated drive (12,000 IMU samples at 200 Hz) as fast as the consumers drain, with the ins
-    running (so the earth + transport rate is applied from its solutions): every published attitude equals
-    AdaptiveComplementaryFilter(deploy/attitude.yaml).batch over the same IMU messages with the published
-    omega_in_n, bit for bit; nothing lost; the monitor shows the attitude (live and as a late joiner)."""
+    running (so the earth + transport rate and, the default velocity source, the acceleration compensation are
+    applied from its solutions): every published attitude equals AdaptiveComplementaryFilter(deploy/attitude.yaml)
+    .batch over the same IMU messages with the published omega_in_n, accel_b and vel_b, bit for bit; nothing lost;
+    the service's status names the gravity reference; the monitor shows the attitude (live and as a late
+    joiner)."""
     from zennav.attitude.complementary import AdaptiveComplementaryFilter
     from zennav.params import load_attitude_params as load_config
 
@@ -44,9 +46,10 @@ def test_attitude_service_equals_core_batch_with_ins_rate_and_monitor_shows_it(c
     assert [m["seq"] for m in out] == list(range(n))
     dt = np.array([m["dt_ns"] for m in im], dtype=float) / 1e9
     w_in = np.array([m["omega_in_n"] for m in out])
+    a_b, v_b = (np.array([m[k] for m in out]) for k in ("accel_b", "vel_b"))
     ref = AdaptiveComplementaryFilter(load_config()[0]).batch(
         np.array([m["dtheta"] for m in im]) / dt[:, None], np.array([m["dvel"] for m in im]) / dt[:, None],
-        dt=dt, omega_in_n=w_in)
+        dt=dt, omega_in_n=w_in, a_b=a_b, v_b=v_b)
     assert np.array_equal(np.array([m["q_nb"] for m in out]), ref.q_nb)
     assert np.array_equal(np.array([m["gyro_bias"] for m in out]), ref.bias_b)
     assert np.array_equal(np.array([m["weight"] for m in out]), ref.weight)
@@ -67,6 +70,12 @@ def test_attitude_service_equals_core_batch_with_ins_rate_and_monitor_shows_it(c
     snap = wait_until(counted, 20, "monitor: attitude service done")
     c = snap["services"]["attitude"]["counters"]
     assert c["published"] == n and c["imu"] == n and c["rate_applied"] == applied.sum()
+    compensated = np.any(a_b != 0.0, axis=1)
+    assert c["velocity_source"] == "ins" and c["accel_applied"] == compensated.sum() > 0
+    assert c["accel_applied"] + c["accel_stale"] + c["accel_none"] == n
+    assert "gravity reference: ins velocity (nav/solution) compensated" in snap["services"]["attitude"]["detail"]
+    print(f"acceleration compensation applied to {c['accel_applied']} samples, stale {c['accel_stale']} (the ins "
+          f"lagging the attitude service by more than --accel-max-age), none yet {c['accel_none']}")
     live = [s for s in json_lines(mon) if s["attitude"]]
     assert live and max(s["keys"].get(k.attitude(), {}).get("rate_hz", 0) for s in live) > 200
     print(f"attitude service: {c['cost_us_per_sample']} us per sample in the filter + message, "

@@ -17,6 +17,7 @@ from zennav.nav.rotation import euler_to_quat, quat_multiply, quat_to_dcm, quat_
 REPO = Path(__file__).resolve().parents[2]
 DEG = math.pi / 180.0
 G_N = np.array([0.0, 0.0, G0])  # gravity in NED [m/s^2]
+ZERO = (0.0, 0.0, 0.0)
 
 
 def tilt_error(q_est, q_true) -> float:
@@ -189,3 +190,84 @@ def test_parameter_file_and_validation():
         ComplementaryConfig(tau_acc_s=0.0)
     with pytest.raises(ValueError):
         AdaptiveComplementaryFilter().batch(np.zeros((3, 3)), np.zeros((3, 3)))
+
+
+def drive(rng, dt=0.01):
+    """Level vehicle: 10 s at rest, 30 s accelerating forward at 1.5 m/s^2, 30 s turning right at 0.05 rad/s at
+    constant speed (2.25 m/s^2 centripetal): t [s], gyro [rad/s], specific force [m/s^2] (both noisy) and the true
+    forward speed [m/s]; roll and pitch are 0 throughout."""
+    t = np.arange(7000) * dt
+    accel = np.where((t >= 10.0) & (t < 40.0), 1.5, 0.0)
+    speed = np.concatenate([[0.0], np.cumsum(accel[:-1]) * dt])
+    yaw_rate = np.where(t >= 40.0, 0.05, 0.0)
+    omega = np.column_stack([np.zeros_like(t), np.zeros_like(t), yaw_rate]) + 0.002 * rng.standard_normal((7000, 3))
+    f = np.column_stack([accel, yaw_rate * speed, np.full_like(t, -G0)]) + 0.02 * rng.standard_normal((7000, 3))
+    return t, omega, f, speed
+
+
+def test_acceleration_compensation_holds_the_tilt_the_filter_alone_loses():
+    """A sustained forward acceleration and then a turn, below the rejection's reach (||f| - g| <= 0.26 m/s^2):
+    the filter alone tilts by more than 5 deg; with a_b, v_b from a 10 Hz velocity source (the forward speed,
+    zennav.attitude.acceleration) the tilt stays within 0.5 deg (0.28 here: the 0.1 s differencing lag at the
+    acceleration's steps, the speed noise), and the reference is applied to every sample
+    once it has two velocity samples."""
+    from zennav.attitude.acceleration import AccelerationReference
+
+    rng = np.random.default_rng(6)
+    t, omega, f, speed = drive(rng)
+    level = np.array([1.0, 0.0, 0.0, 0.0])
+    alone = AdaptiveComplementaryFilter().batch(omega, f, dt=0.01)
+    assert max(tilt_error(q, level) for q in alone.q_nb) > 5 * DEG
+    ref = AccelerationReference(min_span_s=0.1, max_age_s=1.5)
+    flt = AdaptiveComplementaryFilter()
+    errs, bias = [], np.zeros(3)
+    for k in range(len(t)):
+        t_ns = int(round(t[k] * 1e9))
+        if k % 10 == 0:
+            ref.add(t_ns, (speed[k] + 0.02 * rng.standard_normal(), 0.0, 0.0))
+        r = ref.at(t_ns, omega[k] - bias)
+        s = flt.step(0.01, omega[k], f[k], a_b=r[0] if r else (0.0, 0.0, 0.0), v_b=r[1] if r else (0.0, 0.0, 0.0))
+        bias = s.bias_b
+        errs.append(tilt_error(s.q_nb, level))
+    assert max(errs) < 0.5 * DEG
+    assert ref.counts["applied"] == len(t) - 10 and ref.counts["stale"] == 0
+
+
+def test_acceleration_reference_differences_holds_and_rejects():
+    """dv_b/dt over the newest span >= min_span, extrapolated with the jerk between differences >= min_span apart,
+    omega x v_b with v_b extrapolated; a sample waits until the IMU reaches its time; stale estimates, gaps,
+    non-finite and non-increasing samples are counted, never used."""
+    from zennav.attitude.acceleration import AccelerationReference, body_velocity_of_solution, body_velocity_of_speed
+
+    s = 1_000_000_000
+    ref = AccelerationReference(min_span_s=0.2, max_age_s=1.0)
+    assert ref.at(0, ZERO) is None and ref.counts["none"] == 1
+    for k in range(4):  # 10 Hz, 2 m/s^2 forward
+        assert ref.add(k * s // 10, (10.0 + 0.2 * k, 1.0, 0.0)) == ""
+    assert ref.at(s // 20, ZERO) is None  # only the first sample reached: nothing to difference yet
+    a_b, v_b = ref.at(3 * s // 10, (0.0, 0.0, 0.5))  # samples 0..3 reached: (v3 - v1) / 0.2 s
+    assert v_b == pytest.approx((10.6, 1.0, 0.0))
+    assert a_b == pytest.approx((2.0 - 0.5 * 1.0, 0.5 * 10.6, 0.0))
+    a_b, v_b = ref.at(8 * s // 10, ZERO)  # held and extrapolated 0.5 s on
+    assert a_b == pytest.approx((2.0, 0.0, 0.0)) and v_b == pytest.approx((11.6, 1.0, 0.0))
+    assert ref.at(13 * s // 10 + 1, ZERO) is None and ref.counts["stale"] == 1  # 1 s after the newest sample
+    assert ref.add(0, (1.0, 0.0, 0.0)) == "not_increasing"
+    assert ref.add(5 * s, (float("nan"), 0.0, 0.0)) == "not_finite"
+    assert ref.add(5 * s, (20.0, 0.0, 0.0)) == ""  # 4.7 s after the last: a gap, no difference across it
+    assert ref.at(5 * s, ZERO) is None and ref.counts["gap"] == 1
+    assert ref.counts["velocity"] == 5 and ref.counts["applied"] == 2
+    # constant jerk (1 m/s^3 forward from rest): the differences are exact at their midpoints, the jerk from two of
+    # them min_span apart, so 0.3 s after the last sample a = 1.3 m/s^2 and v = 0.845 m/s exactly
+    ref = AccelerationReference(min_span_s=0.2, max_age_s=1.0, jerk=True)
+    for k in range(11):
+        ref.add(k * s // 10, (0.5 * (k / 10) ** 2, 0.0, 0.0))
+    a_b, v_b = ref.at(13 * s // 10, ZERO)
+    assert a_b == pytest.approx((1.3, 0.0, 0.0), abs=1e-9) and v_b == pytest.approx((0.845, 0.0, 0.0), abs=1e-9)
+    # sources: v_b = C_bn v_n with the ins attitude (heading 90 deg: north velocity is to the left), or speed
+    q_east = euler_to_quat((0.0, 0.0, 90 * DEG))
+    assert body_velocity_of_solution(q_east, (3.0, 0.0, 0.0)) == pytest.approx((0.0, -3.0, 0.0), abs=1e-12)
+    assert body_velocity_of_speed((3.0, -4.0, 0.0)) == (5.0, 0.0, 0.0)
+    with pytest.raises(ValueError):
+        AccelerationReference(min_span_s=2.0, max_age_s=1.0)
+    with pytest.raises(ValueError):
+        AdaptiveComplementaryFilter().batch(np.zeros((3, 3)), np.zeros((3, 3)), dt=0.01, v_b=np.zeros(3))

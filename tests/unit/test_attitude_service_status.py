@@ -35,12 +35,16 @@ def _stream(duration_s: float, heading_unknown: bool = False):
             for kind, m in stream_messages(ds, windows, events)]
 
 
-def _reference(msgs, cfg, w_in):
+def _reference(msgs, cfg, out):
+    """The core's batch over the stream's IMU samples with the omega_in_n, a_b and v_b the node published."""
     imu = [m for _, m in msgs if m["schema"] == "imu"]
     dt = np.array([m["dt_ns"] for m in imu], dtype=float) / 1e9
     omega = np.array([m["dtheta"] for m in imu]) / dt[:, None]
     f = np.array([m["dvel"] for m in imu]) / dt[:, None]
-    return imu, AdaptiveComplementaryFilter(cfg).batch(omega, f, dt=dt, omega_in_n=w_in)
+    w_in = np.array([o["omega_in_n"] for o in out])
+    a_b, v_b = (None, None) if out[0]["accel_b"] is None else (np.array([o[k] for o in out])
+                                                              for k in ("accel_b", "vel_b"))
+    return imu, AdaptiveComplementaryFilter(cfg).batch(omega, f, dt=dt, omega_in_n=w_in, a_b=a_b, v_b=v_b)
 
 
 def test_attitude_node_equals_core_batch_bit_for_bit_in_any_arrival_order():
@@ -57,13 +61,13 @@ def test_attitude_node_equals_core_batch_bit_for_bit_in_any_arrival_order():
         blk = tail[i:i + 8]
         rnd.shuffle(blk)
         tail[i:i + 8] = blk
-    sol = {"t_ns": 0, "llh": [0.53, 1.99, 40.0], "v_n": [10.0, -5.0, 0.1]}
+    sol = {"t_ns": 0, "llh": [0.53, 1.99, 40.0], "v_n": [10.0, -5.0, 0.1], "q_nb": [1.0, 0.0, 0.0, 0.0]}
     for n, (key, m) in enumerate(head + tail):
         if n == 500:  # a solution arrives: its sample time must be near the IMU's for it to be used
             sol["t_ns"] = m["t_ns"]
             node.on_solution(sol)
         node.on_sensor(key, m)
-    imu, ref = _reference(msgs, cfg, np.array([o["omega_in_n"] for o in out]))
+    imu, ref = _reference(msgs, cfg, out)
     assert len(out) == len(imu) == 4000 and node.follower.done
     assert [o["t_ns"] for o in out] == [m["t_ns"] for m in imu]
     assert np.array_equal(np.array([o["q_nb"] for o in out]), ref.q_nb)
@@ -89,6 +93,95 @@ def test_attitude_node_equals_core_batch_bit_for_bit_in_any_arrival_order():
     still = (t - t[0]) < 7.5e9
     err = np.array([o["euler"][:2] for o in out])[still] - truth.euler[idx[still], :2]
     assert np.abs(err).max() < np.radians(0.25)
+
+
+def _truth_tilt_deg(out, duration_s):
+    """Tilt error of published attitudes against sim:car's truth [deg], per sample."""
+    from zennav.datasets.registry import load_dataset
+    from zennav.nav.rotation import euler_to_quat, quat_to_dcm
+
+    truth = load_dataset("sim:car", duration_s=duration_s).truth
+    idx = np.searchsorted(truth.t_ns, [o["t_ns"] for o in out])
+    d_true = np.array([quat_to_dcm(euler_to_quat(e))[2] for e in truth.euler[idx]])  # down axis in b
+    d_est = np.array([quat_to_dcm(np.array(o["q_nb"]))[2] for o in out])
+    return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", d_true, d_est), -1.0, 1.0)))
+
+
+def test_attitude_node_velocity_reference_from_the_ins_and_stale_velocity_rejected():
+    """Velocity source ins (the default): the ins core's solutions reach the attitude node after each IMU sample, as
+    live, and stop at 60 s (a dead ins). Until then a_b is applied to every sample and the tilt stays within 1 deg
+    of the truth through the drive's accelerations (the filter alone, source none, exceeds 5 deg); after
+    60 + accel_max_age s the velocity is stale: not used (zeros published), counted; the output is the core's batch
+    with the published a_b, v_b bit for bit; the status says which reference."""
+    from zennav.nodes.ins import InsNode
+
+    cfg, _ = load_config()
+    msgs = _stream(90.0)
+    states = []
+    runs = {}
+    for source in ("ins", "none"):
+        out = []
+        node = AttitudeNode(out.append, log, cfg, K.imu(), velocity_source=source, gnss_key=K.gnss(),
+                            on_state=states.append)
+        stop_ns = msgs[0][1]["initial"]["t_ns"] + 60_000_000_000
+
+        def on_ins(kind, m, node=node, stop_ns=stop_ns):
+            if kind == "solution" and m["t_ns"] <= stop_ns:
+                node.on_solution(m)
+
+        ins = InsNode(on_ins, log)
+        for key, m in msgs:
+            node.on_sensor(key, m)
+            ins.on_sensor(key, m)
+        runs[source] = (out, node)
+    out, node = runs["ins"]
+    imu, ref = _reference(msgs, cfg, out)
+    assert np.array_equal(np.array([o["q_nb"] for o in out]), ref.q_nb)
+    t = (np.array([o["t_ns"] for o in out]) - msgs[0][1]["initial"]["t_ns"]) / 1e9
+    a_b = np.array([o["accel_b"] for o in out])
+    used = np.any(a_b != 0.0, axis=1)
+    assert used[t <= 60.0].all() and not used[t > 61.5].any()
+    c = node.counters()
+    assert c["velocity_source"] == "ins" and c["accel_applied"] == used.sum() > 0
+    assert c["accel_stale"] == (t > 61.5).sum() > 0 and c["accel_none"] == 0
+    assert "gravity reference: ins velocity (nav/solution) compensated" in states[0]
+    assert "gravity reference: accelerometer alone" in states[-1]
+    err = _truth_tilt_deg(out, 90.0)
+    alone = _truth_tilt_deg(runs["none"][0], 90.0)
+    assert err[t <= 60.0].max() < 1.0 and alone[t <= 60.0].max() > 5.0, (err.max(), alone.max())
+    assert runs["none"][0][0]["accel_b"] is None and "accel_applied" not in runs["none"][1].counters()
+    print(f"\ntilt vs truth, first 60 s of sim:car: ins reference max {err[t <= 60.0].max():.2f} deg, filter alone "
+          f"{alone[t <= 60.0].max():.2f} deg; after the ins stopped: {c['accel_stale']} samples stale")
+
+
+def test_attitude_node_gnss_velocity_reference_stale_in_an_outage():
+    """Velocity source gnss: the fixes' speed in the sensor stream; in a 10 s GNSS outage the estimate goes stale
+    accel_max_age after the last fix and is not used until two fixes are back; bit for bit the core's batch."""
+    from zennav.datasets.registry import load_dataset
+    from zennav.replay import sensor_events
+    from zennav.stream import stream_messages
+
+    ds = load_dataset("sim:car", duration_s=40.0)
+    windows, events = sensor_events(ds, outages=[(15.0, 10.0)])
+    key = {"imu": K.imu(), "gnss": K.gnss(), "stream": K.stream()}
+    msgs = [(key[kind], {**m, "src": "ingest.x", "seq": 0, "pub_ns": 0})
+            for kind, m in stream_messages(ds, windows, events)]
+    cfg, _ = load_config()
+    out = []
+    node = AttitudeNode(out.append, log, cfg, K.imu(), velocity_source="gnss", gnss_key=K.gnss(),
+                        accel_max_age_s=1.5)
+    for k, m in msgs:
+        node.on_sensor(k, m)
+    imu, ref = _reference(msgs, cfg, out)
+    assert np.array_equal(np.array([o["q_nb"] for o in out]), ref.q_nb)
+    t = (np.array([o["t_ns"] for o in out]) - ds.initial.t_ns) / 1e9
+    used = np.any(np.array([o["accel_b"] for o in out]) != 0.0, axis=1)
+    c = node.counters()
+    assert c["velocity_source"] == "gnss" and c["velocity_samples"] == 30  # 40 fixes at 1 Hz, 10 withheld
+    assert not used[(t > 15.5) & (t < 26.0)].any() and used[(t >= 2.0) & (t <= 15.5)].all() and used[t >= 26.0].all()
+    # stale: the outage's samples from 1.5 s after the last fix (14 s) until the second fix after it (26 s)
+    assert c["accel_stale"] == ((t > 15.5) & (t < 26.0)).sum() and c["accel_none"] == (t < 2.0).sum()
+    assert c["accel_applied"] == used.sum()
 
 
 def test_attitude_node_takes_imu_batches_as_their_samples():

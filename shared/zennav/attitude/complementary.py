@@ -3,10 +3,25 @@
 Frames (README.md, Conventions): n = NED, b = forward-right-down; ``q_nb`` (scalar first) maps b to n.
 Inputs: gyro rate ``omega_ib_b`` [rad/s], specific force ``f_b`` [m/s^2] (``[0, 0, -g]`` level at
 rest), optionally the rate of n w.r.t. the inertial frame ``omega_in_n = omega_ie_n + omega_en_n``
-[rad/s] from :mod:`zennav.nav.earth` when the ins service supplies position and velocity.
+[rad/s] from :mod:`zennav.nav.earth` when the ins service supplies position and velocity, and optionally
+the vehicle's own acceleration ``a_b`` [m/s^2] and velocity ``v_b`` [m/s] resolved in b, from a velocity
+source (:mod:`zennav.attitude.acceleration`).
 
 The seed's formulas were lost; these are the standard forms, in the seed's structure:
 
+0. Gravity reference (seed 000's high-dynamic claim): the accelerometer measures
+   ``f_b = C_bn (a_n - g_n)`` with ``g_n = [0, 0, g]`` and
+   ``a_n = dv_n/dt + (2 omega_ie_n + omega_en_n) x v_n`` (the local-navigation-frame velocity equation,
+   Groves 2013, section 5.4, solved for the specific force), so the gravity part alone is
+   ``-C_bn g_n = f_b - a_b`` with ``a_b = C_bn a_n``. Given ``a_b`` (from a velocity source), every use of
+   ``f_b`` below is of ``f_b - a_b``: the error, the rejection deviation and the rest test watch gravity
+   alone, and a sustained acceleration no longer tilts the estimate. This is the acceleration-compensated
+   complementary filter of Euston, Coote, Mahony, Kim & Hamel, "A complementary filter for attitude
+   estimation of a fixed-wing UAV", IROS 2008 (there ``a_b`` from the airspeed and the gyro,
+   ``omega x v``). With the velocity the rest test (item 4) also requires ``|v_b| < rest_speed``: a
+   vehicle cruising straight with slow pitch changes (a road's grade, below ``rest_gyro``) looks at rest to
+   the IMU alone, and learning that rate as a bias tilts the estimate. Without them ``a_b = v_b = 0``: the
+   filter alone, as before.
 1. Gyro term (seed: projected rate): ``omega_nb_b = omega_ib_b - C_bn omega_in_n`` (0 when not given).
 2. Error (seed: measured x predicted gravity): Mahony, Hamel & Pflimlin, "Nonlinear complementary
    filters on the special orthogonal group", IEEE TAC 53(5), 2008, eq. 32 (explicit complementary
@@ -52,6 +67,15 @@ from zennav.nav import alignment
 from zennav.nav.earth import G0
 from zennav.nav.rotation import euler_to_quat
 
+ZERO3 = (0.0, 0.0, 0.0)
+
+
+def _velocity_reference(a_b, v_b) -> tuple:
+    """(a_b, v_b) with zeros for None; v_b without a_b is refused (it would change nothing)."""
+    if a_b is None and v_b is not None:
+        raise ValueError("v_b is only used with a_b")
+    return (ZERO3 if a_b is None else a_b), (ZERO3 if v_b is None else v_b)
+
 
 @dataclass(frozen=True)
 class ComplementaryConfig:
@@ -65,7 +89,8 @@ class ComplementaryConfig:
     reject_hold_s: float = 1.0  # low-pass time constant of that deviation [s]
     rest_gyro_dps: float = 2.0  # rest if |omega_nb_b - bias_b| below this [deg/s] ...
     rest_acc_mps2: float = 0.5  # ... and ||f| - g| below this [m/s^2] ...
-    rest_time_s: float = 1.5  # ... for this long [s]
+    rest_time_s: float = 1.5  # ... for this long [s] (and |v_b| below rest_speed_mps when v_b is given)
+    rest_speed_mps: float = 0.5  # rest needs the velocity reference's |v_b| below this when given [m/s]
     tau_rest_bias_s: float = 3.0  # bias low-pass time constant while at rest [s]
     gravity_mps2: float = G0  # local gravity magnitude g [m/s^2]
     level_time_s: float = 0.5  # accelerometer averaging time for levelling [s]
@@ -74,7 +99,7 @@ class ComplementaryConfig:
         positive = ("tau_acc_s", "acc_lowpass_s", "tau_bias_s", "reject_hold_s", "tau_rest_bias_s", "gravity_mps2")
         if min(getattr(self, k) for k in positive) <= 0.0:
             raise ValueError(f"{', '.join(positive)} must be positive")
-        if min(self.rest_gyro_dps, self.rest_acc_mps2, self.rest_time_s) < 0.0:
+        if min(self.rest_gyro_dps, self.rest_acc_mps2, self.rest_time_s, self.rest_speed_mps) < 0.0:
             raise ValueError("rest thresholds must be non-negative")
         if not 0.0 <= self.reject_start_mps2 < self.reject_full_mps2:
             raise ValueError("need 0 <= reject_start_mps2 < reject_full_mps2")
@@ -117,9 +142,12 @@ class AttitudeBatch:
     weight: np.ndarray  # (N,)
 
 
-def _run(q, b, m, w, h, r, rows, with_in, k_p, k_i, a_lp, g, a_start, a_full, a_hold, rest_w2, rest_a, rest_t, a_rest):
-    """Advance state (q, b, m, w, h, r) over rows (dt, wx, wy, wz, fx, fy, fz, nx, ny, nz); return it and outputs
-    (flat array('d'), 8 per row: q_nb, bias_b, weight). with_in: use (nx, ny, nz) = omega_in_n.
+def _run(q, b, m, w, h, r, rows, with_in, with_acc, k_p, k_i, a_lp, g, a_start, a_full, a_hold, rest_w2, rest_a,
+         rest_t, a_rest, rest_v2):
+    """Advance state (q, b, m, w, h, r) over rows (dt, wx, wy, wz, fx, fy, fz, nx, ny, nz, ax, ay, az, vx, vy, vz);
+    return it and outputs (flat array('d'), 8 per row: q_nb, bias_b, weight). with_in: use (nx, ny, nz) =
+    omega_in_n; with_acc: use (ax, ay, az) = a_b, the gravity reference being f_b - a_b, and (vx, vy, vz) = v_b,
+    rest needing |v_b|^2 < rest_v2.
 
     a_lp, a_hold, a_rest: inverse time constants [1/s]; rest_w2 = rest gyro threshold^2 [(rad/s)^2].
     """
@@ -131,7 +159,13 @@ def _run(q, b, m, w, h, r, rows, with_in, k_p, k_i, a_lp, g, a_start, a_full, a_
     out = array("d")
     extend = out.extend
     sqrt = math.sqrt
-    for dt, wx, wy, wz, fx, fy, fz, nx, ny, nz in rows:
+    for dt, wx, wy, wz, fx, fy, fz, nx, ny, nz, ax, ay, az, vx, vy, vz in rows:
+        still = True
+        if with_acc:
+            fx -= ax
+            fy -= ay
+            fz -= az
+            still = vx * vx + vy * vy + vz * vz < rest_v2
         # C_nb from q.
         c11 = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
         c12 = 2.0 * (q1 * q2 - q0 * q3)
@@ -154,7 +188,7 @@ def _run(q, b, m, w, h, r, rows, with_in, k_p, k_i, a_lp, g, a_start, a_full, a_
         if d < 0.0:
             d = -d
         # Rest: residual rate and |f| deviation below thresholds for rest_t seconds -> bias_b <- LP(omega).
-        if d < rest_a and ux * ux + uy * uy + uz * uz < rest_w2:
+        if d < rest_a and ux * ux + uy * uy + uz * uz < rest_w2 and still:
             r += dt
             if r >= rest_t:
                 c = dt * a_rest
@@ -253,23 +287,29 @@ class AdaptiveComplementaryFilter:
         self._q = tuple(float(v) for v in euler_to_quat((roll, pitch, 0.0)))
 
     # -- processing --------------------------------------------------------------------------------
-    def step(self, dt: float, omega_ib_b, f_b, omega_in_n=None) -> AttitudeState:
-        """One sample: interval dt [s], gyro [rad/s] and specific force [m/s^2] in b; levels on first use."""
+    def step(self, dt: float, omega_ib_b, f_b, omega_in_n=None, a_b=None, v_b=None) -> AttitudeState:
+        """One sample: interval dt [s], gyro [rad/s] and specific force [m/s^2] in b, optionally omega_in_n
+        [rad/s] in n and the vehicle's acceleration a_b [m/s^2] and velocity v_b [m/s] in b (v_b only with a_b);
+        levels on first use (from f_b - a_b)."""
+        a, v = _velocity_reference(a_b, v_b)
         if self._q is None:
-            self.level(f_b)
-        n = (0.0, 0.0, 0.0) if omega_in_n is None else tuple(float(v) for v in omega_in_n)
-        row = (float(dt), *(float(v) for v in omega_ib_b), *(float(v) for v in f_b), *n)
-        self._advance([row], omega_in_n is not None)
+            self.level(np.subtract(f_b, a))
+        n = ZERO3 if omega_in_n is None else tuple(float(x) for x in omega_in_n)
+        row = (float(dt), *(float(x) for x in omega_ib_b), *(float(x) for x in f_b), *n, *(float(x) for x in a),
+               *(float(x) for x in v))
+        self._advance([row], omega_in_n is not None, a_b is not None)
         if self._t is not None:
             self._t += float(dt)
         return self.get_state()
 
-    def batch(self, omega_ib_b, f_b, dt=None, t=None, omega_in_n=None) -> AttitudeBatch:
+    def batch(self, omega_ib_b, f_b, dt=None, t=None, omega_in_n=None, a_b=None, v_b=None) -> AttitudeBatch:
         """Process N samples: omega_ib_b (N, 3) [rad/s], f_b (N, 3) [m/s^2] in b.
 
         Give either dt [s] (scalar or (N,) sample intervals) or t [s] ((N,) sample times; the first
         interval runs from the state's last time, or is 0 when none is known). omega_in_n [rad/s] is
-        (3,) or (N, 3) in n, or None. Levels from the first level_time_s seconds if not levelled yet.
+        (3,) or (N, 3) in n, or None; a_b [m/s^2] and v_b [m/s], the vehicle's acceleration and velocity in b,
+        (3,) or (N, 3), or None (the filter alone; v_b only with a_b). Levels from the first level_time_s
+        seconds (of f_b - a_b) if not levelled yet.
         """
         omega = np.asarray(omega_ib_b, dtype=float).reshape(-1, 3)
         f = np.asarray(f_b, dtype=float).reshape(-1, 3)
@@ -285,15 +325,18 @@ class AdaptiveComplementaryFilter:
             dts = np.diff(t, prepend=self._t if self._t is not None else t[0])
         else:
             dts = np.broadcast_to(np.asarray(dt, dtype=float), (n,))
+        acc, vel = (np.asarray(x, dtype=float) for x in _velocity_reference(a_b, v_b))
         if self._q is None:
-            n_level = np.searchsorted(np.cumsum(dts), self.config.level_time_s * (1.0 + 1e-9), side="right")
-            self.level(f[: max(1, int(n_level))])
+            n_level = max(1, int(np.searchsorted(np.cumsum(dts), self.config.level_time_s * (1.0 + 1e-9),
+                                                 side="right")))
+            self.level(f[:n_level] - (acc if acc.shape == (3,) else np.broadcast_to(acc, (n, 3))[:n_level]))
         # Columns as Python floats (constant ones repeated without copies) zipped into rows.
         cols = [repeat(float(dts[0])) if np.ndim(dt) == 0 and t is None else dts.tolist()]
         cols += omega.T.tolist() + f.T.tolist()
         w_in = np.zeros(3) if omega_in_n is None else np.asarray(omega_in_n, dtype=float)
-        cols += [repeat(float(v)) for v in w_in] if w_in.shape == (3,) else np.broadcast_to(w_in, (n, 3)).T.tolist()
-        out = self._advance(zip(*cols), omega_in_n is not None)
+        for v3 in (w_in, acc, vel):
+            cols += [repeat(float(v)) for v in v3] if v3.shape == (3,) else np.broadcast_to(v3, (n, 3)).T.tolist()
+        out = self._advance(zip(*cols), omega_in_n is not None, a_b is not None)
         if t is not None:
             self._t = float(t[-1])
         elif self._t is not None:
@@ -301,7 +344,7 @@ class AdaptiveComplementaryFilter:
         arr = np.frombuffer(out, dtype=float).reshape(n, 8)
         return AttitudeBatch(q_nb=arr[:, :4], bias_b=arr[:, 4:7], weight=arr[:, 7])
 
-    def _advance(self, rows, with_in: bool) -> array:
+    def _advance(self, rows, with_in: bool, with_acc: bool) -> array:
         c = self.config
         self._q, self._b, self._m, self._w, self._h, self._r, out = _run(
             self._q,
@@ -312,6 +355,7 @@ class AdaptiveComplementaryFilter:
             self._r,
             rows,
             with_in,
+            with_acc,
             self._k_p,
             self._k_i,
             1.0 / c.acc_lowpass_s,
@@ -323,5 +367,6 @@ class AdaptiveComplementaryFilter:
             c.rest_acc_mps2,
             c.rest_time_s,
             1.0 / c.tau_rest_bias_s,
+            c.rest_speed_mps**2,
         )
         return out

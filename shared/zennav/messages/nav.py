@@ -57,8 +57,11 @@ def check_nav_status(msg: dict) -> str:
 
 define("attitude", 1, "Attitude filter output: q_nb (scalar first), euler roll/pitch/yaw [rad], gyro_bias [rad/s], "
        "weight: accelerometer rejection weight in [0, 1]; omega_in_n [rad/s, NED] (optional, added compatibly): "
-       "the earth + transport rate applied to this sample (zeros without an ins solution).",
-       q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), weight=FLOAT, omega_in_n=OPT(VEC(3)))
+       "the earth + transport rate applied to this sample (zeros without an ins solution); accel_b [m/s^2], "
+       "vel_b [m/s] (optional, added compatibly; None without a velocity source): the vehicle's acceleration and "
+       "velocity in body axes applied to this sample (zeros when the velocity was stale or not there yet).",
+       q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), weight=FLOAT, omega_in_n=OPT(VEC(3)), accel_b=OPT(VEC(3)),
+       vel_b=OPT(VEC(3)))
 define("nav_solution", 1, "Navigation solution of the IMU at t_ns (see zennav.nav.navigator.NavSolution); "
        "imu_cseq/imu_pub_ns identify the IMU sample that produced it (latency, loss checks).",
        llh=VEC(3), v_n=VEC(3), q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), accel_bias=VEC(3),
@@ -142,11 +145,13 @@ def nav_solution_msg_of(nav, imu_cseq: int = -1, imu_pub_ns: int = 0) -> dict:
                 imu_pub_ns=int(imu_pub_ns))
 
 
-def attitude_msg(t_ns: int, q_nb: list, gyro_bias: list, weight: float, omega_in_n) -> dict:
-    """attitude message of one filter output: q_nb (scalar first), gyro bias [rad/s], rejection weight, and the
-    omega_in_n [rad/s, NED] applied."""
+def attitude_msg(t_ns: int, q_nb: list, gyro_bias: list, weight: float, omega_in_n, accel_b=None,
+                 vel_b=None) -> dict:
+    """attitude message of one filter output: q_nb (scalar first), gyro bias [rad/s], rejection weight, the
+    omega_in_n [rad/s, NED] applied and, with a velocity source, the accel_b [m/s^2] and vel_b [m/s] applied."""
     return make("attitude", t_ns, q_nb=q_nb, euler=euler_list(*q_nb), gyro_bias=gyro_bias, weight=float(weight),
-                omega_in_n=list(omega_in_n))
+                omega_in_n=list(omega_in_n), accel_b=None if accel_b is None else list(accel_b),
+                vel_b=None if vel_b is None else list(vel_b))
 
 
 def _finite(x: float, default: float) -> float:
