@@ -31,3 +31,6 @@ main.add_command(launch_cmd)
 main.add_command(monitor_cmd)
 main.add_command(record_cmd)
 main.add_command(bus_replay_cmd)
+from .receivers.cli import gnss_sim  # noqa: E402
+
+main.add_command(gnss_sim)
