@@ -120,6 +120,7 @@ class GnssReceiver:
         self.ubx = UbxDecoder(ref_t_ns)
         self.fixes: queue.Queue[GnssFix] = queue.Queue()
         self.exhausted = threading.Event()
+        self.opened = threading.Event()  # the link is open (a serial port drops what came before its opening)
         self.events: Counter[str] = Counter()
         self.last_t_ns = -1
         self.n_fixes = 0
@@ -179,6 +180,8 @@ class GnssReceiver:
             if link is None:
                 try:
                     link = open_link(self.spec)
+                    self.log.info("receiver %s: open", self.spec)
+                    self.opened.set()
                     if self.events["io_errors"]:
                         self.events["reconnects"] += 1
                         self.log.info("receiver %s: reopened", self.spec)
