@@ -29,7 +29,7 @@ PLOTS = ("track", "errors", "test_ratios", "biases", "learned")
 def load_nav_csv(path: Path) -> dict[str, np.ndarray]:
     """nav.csv (zennav.metrics.write_outputs) -> column name -> array."""
     data = np.genfromtxt(path, delimiter=",", names=True)
-    return {n: np.asarray(data[n], dtype=float) for n in data.dtype.names}
+    return {n: np.asarray(data[n], dtype=float) for n in data.dtype.names or ()}
 
 
 def _aid_rows(run: Path, t0_ns: int) -> list[dict]:
@@ -44,7 +44,7 @@ def _aid_rows(run: Path, t0_ns: int) -> list[dict]:
     from .recording import read_mcap
 
     for mc in sorted(run.glob("*.mcap")):
-        for key, msg, _p, _t in read_mcap(mc, [r"/nav/aid/[^/]+$"]):
+        for _key, msg, _p, _t in read_mcap(mc, [r"/nav/aid/[^/]+$"]):
             if msg is not None:
                 rows.append({"t_s": (msg["t_ns"] - t0_ns) / NS, "source": msg["source"], "fused": msg["fused"],
                              "test_ratio": msg["test_ratio"], "obs": list(msg["observation"])})

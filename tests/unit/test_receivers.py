@@ -69,7 +69,8 @@ def test_round_trip_through_the_decoders(fmt):
 def test_degraded_fixes_carry_quality_and_satellites():
     f = _fixes(1)[0]
     dec_n, dec_u = NmeaDecoder(), UbxDecoder()
-    for dec, data in ((dec_n, nmea_sentences(f, quality=0, num_sats=3)), (dec_u, ubx_frames(f, fix_type=0, num_sats=3))):
+    for dec, data in ((dec_n, nmea_sentences(f, quality=0, num_sats=3)),
+                      (dec_u, ubx_frames(f, fix_type=0, num_sats=3))):
         got = []
         for _k, frame in Framer().feed(data):
             got += dec.decode(frame)
