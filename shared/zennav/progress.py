@@ -46,6 +46,21 @@ class Progress:
         return f"{self.label} [{bar}] {100 * frac:5.1f}% {done_s:.0f}/{self.total_s:.0f} s, {rate:.0f}x real time, " \
                f"ETA {eta_txt}"
 
+    @classmethod
+    def of_replay(cls, ds, label: str, quiet: bool = False) -> Progress:
+        """The progress of a replay of ds (zennav.replay.run_replay): pass ``on_epoch`` as its hook."""
+        from .replay import run_end_ns
+
+        p = cls((run_end_ns(ds) - int(ds.initial.t_ns)) / 1e9, label, quiet=quiet)
+        p.t0_ns = int(ds.initial.t_ns)
+        return p
+
+    t0_ns = 0
+
+    def on_epoch(self, nav) -> None:
+        """run_replay's per-epoch hook: the data time the engine has reached."""
+        self.update((nav.t_ns - self.t0_ns) / 1e9)
+
     def close(self) -> None:
         if self.shown:
             self.stream.write("\r\x1b[K")

@@ -45,7 +45,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     from .metrics import evaluate, format_table, write_outputs
     from .params import ParamError, load_filter_params, nav_config
     from .progress import Progress
-    from .replay import run_end_ns, run_replay, sensor_events
+    from .replay import run_replay, sensor_events
     from .run_outputs import RunRecorder
 
     try:
@@ -59,13 +59,12 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.config = ds.config.with_(adaptive_r=adaptive_r)
     if nhc is not None:
         ds.config = ds.config.with_(nhc=nhc)
-    t0 = int(ds.initial.t_ns)
-    progress = Progress((run_end_ns(ds) - t0) / 1e9, f"replay {ds.name}", quiet=quiet)
-    recorder = RunRecorder(t0, mcap)
+    progress = Progress.of_replay(ds, f"replay {ds.name}", quiet)
+    recorder = RunRecorder(int(ds.initial.t_ns), mcap)
 
     def on_epoch(nav) -> None:
         recorder.on_epoch(nav)
-        progress.update((nav.t_ns - t0) / 1e9)
+        progress.on_epoch(nav)
 
     res = run_replay(ds, outages=list(outages), outage_every=every,
                      compensator=make_compensator(compensation, target, seed), on_epoch=on_epoch)
