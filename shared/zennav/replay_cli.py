@@ -179,12 +179,15 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, ou
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Where to write the plots and index.html [RUN_DIR/report].")
 @click.option("--dataset", default=None, help="The run's dataset spec, for its truth [RUN_DIR/run.json's, else the "
-              "name in metrics.json].")
-def report(run_dir, out, dataset):
+              "name in metrics.json] (a demo folder: sim:car, with -o duration_s=... for a shorter drive).")
+@click.option("-o", "--option", "options", multiple=True, help="Loader option key=value of --dataset (repeatable).")
+def report(run_dir, out, dataset, options):
     """Plots and one self-contained HTML page of a run folder (zennav replay --out, zennav demo): track with the
     GNSS outages, position errors against time, innovation test ratios per aid source, estimated biases with
     their 1-sigma, learned answers against the truth, and the accuracy table (forward and smoothed/ side by side)."""
+    from zennav.services.ingest import _parse_options  # the ingest's -o syntax
+
     from .report import write_report
 
-    page = write_report(run_dir, out, dataset)
+    page = write_report(run_dir, out, dataset, _parse_options(options))
     click.echo(f"wrote {page} and {', '.join(p.name for p in sorted(page.parent.glob('*.png')))}")

@@ -51,15 +51,16 @@ def _aid_rows(run: Path, t0_ns: int) -> list[dict]:
     return rows
 
 
-def _truth(run: Path, metrics: dict, spec: str | None):
-    """The run's dataset (spec, else run.json's, else the name in metrics.json), or why there is no truth."""
+def _truth(run: Path, metrics: dict, spec: str | None, options: dict):
+    """The run's dataset (spec with its loader options, else run.json's, else the name in metrics.json), or why
+    there is no truth."""
     from .datasets.registry import load_dataset
 
     if spec is None and (run / "run.json").exists():
         spec = json.loads((run / "run.json").read_text()).get("dataset_spec")
     spec = spec or metrics["dataset"]
     try:
-        return load_dataset(spec)
+        return load_dataset(spec, **options)
     except Exception as e:  # any loader error: the report goes on without truth
         return f"truth not available ({spec}: {e})"
 
@@ -86,9 +87,9 @@ def _shade(ax, windows) -> None:
         ax.axvspan(a, b, color="tab:red", alpha=0.15, lw=0, label="GNSS outage" if i == 0 else None)
 
 
-def write_report(run: Path, out: Path | None = None, spec: str | None = None) -> Path:
-    """Every plot that the folder's data allows and index.html; returns the page's path. spec: the run's dataset
-    (default: run.json's, else the name in metrics.json)."""
+def write_report(run: Path, out: Path | None = None, spec: str | None = None, options: dict | None = None) -> Path:
+    """Every plot that the folder's data allows and index.html; returns the page's path. spec, options: the run's
+    dataset and its loader options (default: run.json's, else the name in metrics.json)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -101,7 +102,7 @@ def write_report(run: Path, out: Path | None = None, spec: str | None = None) ->
     sols = {"forward": load_nav_csv(run / "nav.csv")}
     if (run / "smoothed" / "nav.csv").exists():
         sols["smoothed"] = load_nav_csv(run / "smoothed" / "nav.csv")
-    ds = _truth(run, metrics, spec)
+    ds = _truth(run, metrics, spec, options or {})
     notes = [ds] if isinstance(ds, str) else []
     ds = None if isinstance(ds, str) else ds
     fwd = sols["forward"]
