@@ -32,6 +32,7 @@ from zennav.learn.loop import CHOICES, make_compensator, training_set
 from zennav.metrics import evaluate
 from zennav.nav.learning import TARGETS, LearnSample
 from zennav.nav.navigator import Navigator
+from zennav.progress import Progress
 from zennav.replay import run_replay
 
 HEADER = (f"{'window':>7}{'compensation':>14}{'windows':>9}{'RMS of max m':>14}{'max m':>9}{'vs INS':>9}"
@@ -79,7 +80,10 @@ def drive(args) -> None:
         rms: dict[str, list[float]] = {}
         for model, seed, label in _runs(args.seeds):
             t0 = time.perf_counter()
-            res = run_replay(ds, outage_every=every, compensator=make_compensator(model, args.target, seed))
+            progress = Progress.of_replay(ds, f"{length:g} s windows, {label}")
+            res = run_replay(ds, outage_every=every, compensator=make_compensator(model, args.target, seed),
+                             on_epoch=progress.on_epoch)
+            progress.close()
             m = evaluate(ds, res)
             rms.setdefault(model, []).append(_row(length, label, [w["max_horizontal_m"] for w in m["outages"]], base,
                                                   _answered(res), time.perf_counter() - t0))

@@ -130,9 +130,10 @@ class Publisher:
             self.latest = payload
         return payload
 
-    def put_raw(self, payload: bytes) -> None:
-        """Publish bytes as they are (bus replay, tests injecting bad payloads)."""
-        self._pub.put(payload)
+    def put_raw(self, payload: bytes, attachment: bytes | None = None) -> None:
+        """Publish bytes as they are (bus replay, tests injecting bad payloads, the ROS 2 bridge's CDR with its
+        rmw_zenoh attachment)."""
+        self._pub.put(payload, attachment=attachment)
         if self._queryable is not None:
             self.latest = payload
 

@@ -20,9 +20,10 @@ def main():
 
 # Subcommands register below (one import per command module).
 from .demo_cli import demo  # noqa: E402
-from .replay_cli import replay  # noqa: E402
+from .replay_cli import replay, report  # noqa: E402
 
 main.add_command(replay)
+main.add_command(report)
 main.add_command(demo)
 from .bus_cli import bus_replay_cmd, launch_cmd, monitor_cmd, record_cmd, router_cmd  # noqa: E402
 
@@ -31,3 +32,6 @@ main.add_command(launch_cmd)
 main.add_command(monitor_cmd)
 main.add_command(record_cmd)
 main.add_command(bus_replay_cmd)
+from .receivers.cli import gnss_sim  # noqa: E402
+
+main.add_command(gnss_sim)

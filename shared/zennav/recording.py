@@ -5,14 +5,20 @@ schema. ``--encoding json`` (default) stores each message as JSON with a JSON-sc
 schema (``<name>@v<version>``), so Foxglove shows and plots the fields; ``--encoding msgpack`` stores the
 payload bytes exactly as they travelled, with message encoding "msgpack" (Foxglove lists the channels but
 cannot decode them). Both replay bit for bit: float64 values are written with Python's round-trip ``repr``
-and re-encoded to the same msgpack floats. log_time is the receive wall time [ns], publish_time the
-message's pub_ns. In json mode payloads that fail validation are counted and not recorded (they could not
-be represented); msgpack mode records everything received.
+and re-encoded to the same msgpack floats. log_time is the message's sample time ``t_ns`` as Unix time
+(zennav.gpstime; a service heartbeat's t_ns is already wall-clock Unix time), so Foxglove's timeline is the
+sample time; publish_time the message's pub_ns (wall clock). Messages are stored in receive order. In json mode
+payloads that fail validation are counted and not recorded (they could not be represented); msgpack mode
+records everything received (an undecodable payload at its receive time).
 
-Replay republishes every recorded message of the selected keys in log-time order with the original gaps
-(``--speed 1``), N times faster, or as fast as the consumers drain (``--speed 0``), through the stream's
-QoS; the header (src, seq, pub_ns) is restamped by the replaying publisher, everything else is unchanged, so
-an ins fed from a replay reproduces the recorded solution exactly.
+Beside the raw messages, solutions and GNSS fixes get Foxglove views (zennav.foxglove: foxglove.LocationFix,
+PoseInFrame, FrameTransform on ``<key>/location``, ``/pose``, ``/tf``; channel metadata ``derived_from``), so a
+map and a 3-D view need no configuration. Readers of zennav messages (``read_mcap``) skip them.
+
+Replay republishes every recorded message of the selected keys in receive order with the original gaps of
+their log (sample) times (``--speed 1``), N times faster, or as fast as the consumers drain (``--speed 0``),
+through the stream's QoS; the header (src, seq, pub_ns) is restamped by the replaying publisher, everything
+else is unchanged, so an ins fed from a replay reproduces the recorded solution exactly.
 """
 from __future__ import annotations
 
@@ -24,6 +30,9 @@ import time
 from pathlib import Path
 
 from . import messages as M
+from .foxglove import SCHEMAS as FOXGLOVE_SCHEMAS
+from .foxglove import FoxgloveViews
+from .gpstime import gps_ns_to_unix_ns
 
 log = logging.getLogger("zennav.record")
 
@@ -51,6 +60,14 @@ def json_schema(schema: M.Schema) -> dict:
             "description": schema.doc, "type": "object", "properties": props, "required": required}
 
 
+def log_time_ns(msg: dict | None, recv_ns: int) -> int:
+    """An MCAP log time for a message: its sample time as Unix ns (a heartbeat's wall-clock t_ns as it is); the
+    receive time for a payload that could not be decoded."""
+    if msg is None:
+        return int(recv_ns)
+    return int(msg["t_ns"]) if msg["schema"] == "service_status" else gps_ns_to_unix_ns(msg["t_ns"])
+
+
 def _compression():
     from mcap.writer import CompressionType
 
@@ -63,7 +80,7 @@ def _compression():
 
 
 class McapRecorder:
-    """Writes (key, payload, recv_ns) to an MCAP file; thread-safe."""
+    """Writes (key, payload, recv_ns) or (key, message) to an MCAP file with the Foxglove views; thread-safe."""
 
     def __init__(self, path, encoding: str = "json"):
         from mcap.writer import Writer
@@ -83,6 +100,8 @@ class McapRecorder:
         self.skipped = 0
         self.per_key: dict[str, int] = {}
         self._closed = False
+        self._views = FoxgloveViews()
+        self._seq: dict[str, int] = {}
 
     def _schema_id(self, name: str | None) -> int:
         if name is None:
@@ -100,6 +119,7 @@ class McapRecorder:
         return sid
 
     def add(self, key: str, payload: bytes, recv_ns: int) -> None:
+        """A payload as received on key at wall time recv_ns [ns]."""
         msg = None
         try:
             m = M.decode(payload)
@@ -107,6 +127,10 @@ class McapRecorder:
                 msg = m
         except Exception:
             pass
+        self.add_message(key, msg, payload, recv_ns)
+
+    def add_message(self, key: str, msg: dict | None, payload: bytes | None = None, recv_ns: int = 0) -> None:
+        """A validated message (or None: an undecodable payload) of key; its Foxglove views after it."""
         with self._lock:
             if self._closed:
                 return
@@ -116,7 +140,7 @@ class McapRecorder:
                     return
                 data = json.dumps(msg, allow_nan=False, separators=(",", ":")).encode()
             else:
-                data = payload
+                data = payload if payload is not None else M.encode(msg)
             name = msg["schema"] if msg is not None else None
             ck = (key, name or "")
             cid = self._channels.get(ck)
@@ -126,10 +150,27 @@ class McapRecorder:
                 self._channels[ck] = cid
             seq = msg.get("seq", 0) if msg is not None else 0
             pub = msg.get("pub_ns", recv_ns) if msg is not None else recv_ns
-            self._w.add_message(cid, log_time=int(recv_ns), data=data, publish_time=int(pub),
+            log_ns = log_time_ns(msg, recv_ns)
+            self._w.add_message(cid, log_time=log_ns, data=data, publish_time=int(pub),
                                 sequence=int(seq) & 0xFFFFFFFF)
             self.count += 1
             self.per_key[key] = self.per_key.get(key, 0) + 1
+            if msg is not None:
+                for topic, schema, view in self._views.derived(key, msg):
+                    self._add_view(topic, schema, view, key, log_ns, int(pub))
+
+    def _add_view(self, topic: str, schema: str, view: dict, key: str, log_ns: int, pub_ns: int) -> None:
+        cid = self._channels.get((topic, schema))
+        if cid is None:
+            sid = self._schemas.get(schema)
+            if sid is None:
+                sid = self._schemas[schema] = self._w.register_schema(
+                    schema, "jsonschema", json.dumps(FOXGLOVE_SCHEMAS[schema]).encode())
+            cid = self._channels[(topic, schema)] = self._w.register_channel(topic, "json", sid,
+                                                                             {"derived_from": key})
+        n = self._seq[topic] = self._seq.get(topic, -1) + 1
+        self._w.add_message(cid, log_time=log_ns, data=json.dumps(view, separators=(",", ":")).encode(),
+                            publish_time=pub_ns, sequence=n & 0xFFFFFFFF)
 
     def close(self) -> None:
         with self._lock:
@@ -141,13 +182,16 @@ class McapRecorder:
 
 
 def read_mcap(path, keys: list[str] | None = None):
-    """Yield (key, message map or None, payload bytes, log_time_ns) in log-time order; keys are regexes."""
+    """Yield the zennav messages as (key, message map or None, payload bytes, log_time_ns) in recorded (receive)
+    order; keys are regexes. The Foxglove views are skipped."""
     from mcap.reader import make_reader
 
     pats = [re.compile(k) for k in keys] if keys else None
     with open(path, "rb") as f:
         reader = make_reader(f)
-        for _schema, channel, message in reader.iter_messages(log_time_order=True):
+        for _schema, channel, message in reader.iter_messages(log_time_order=False):
+            if "derived_from" in channel.metadata:
+                continue
             key = channel.topic
             if pats and not any(p.search(key) for p in pats):
                 continue

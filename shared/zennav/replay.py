@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -125,11 +125,13 @@ def run_replay(
     outage_every: tuple[float, float, float] | None = None,
     navigator: Navigator | None = None,
     compensator=None,
+    on_epoch: Callable[[Navigator], None] | None = None,
 ) -> ReplayResult:
     """Run the engine over ds from its initial-state time to its end (config.end_t_ns or the last IMU sample).
     GNSS fixes inside the windows are withheld; every other fix is handed over before the first IMU sample
     at or after its time. A compensator (zennav.learn.loop) learns from the engine's training samples and
-    answers its queries while GNSS is lost."""
+    answers its queries while GNSS is lost. on_epoch(nav) is called after each IMU epoch (progress, recording;
+    it must not change the engine)."""
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     nav = navigator or Navigator(config, ds.initial)
     imu, gnss = ds.imu, ds.gnss
@@ -161,6 +163,8 @@ def run_replay(
         std[i] = nav.std_pos_ned
         outage[i] = nav.gnss_state != "valid"
         reports.extend(nav.pop_reports())
+        if on_epoch is not None:
+            on_epoch(nav)
         i += 1
     wall = time.perf_counter() - wall0
     return ReplayResult(

@@ -32,17 +32,21 @@ _parse_every = _click_parser("parse_outage_every")
 
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
                    target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None,
-                   seed: int = 0, params: Path | None = None, nhc: bool | None = None) -> dict:
+                   seed: int = 0, params: Path | None = None, nhc: bool | None = None, mcap: Path | None = None,
+                   quiet: bool = False) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
     seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins); nhc:
-    override the parameter file's non-holonomic constraint (None: keep)."""
+    override the parameter file's non-holonomic constraint (None: keep); mcap: also write the run as a Foxglove-ready
+    MCAP; quiet: no progress line (there is none either when stderr is not a terminal)."""
     from .datasets.errors import DataError
     from .datasets.registry import load_dataset
     from .learn.loop import make_compensator
     from .metrics import evaluate, format_table, write_outputs
     from .params import ParamError, load_filter_params, nav_config
-    from .replay import run_replay
+    from .progress import Progress
+    from .replay import run_replay, sensor_events
+    from .run_outputs import RunRecorder
 
     try:
         ds = load_dataset(spec)
@@ -55,19 +59,31 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.config = ds.config.with_(adaptive_r=adaptive_r)
     if nhc is not None:
         ds.config = ds.config.with_(nhc=nhc)
+    progress = Progress.of_replay(ds, f"replay {ds.name}", quiet)
+    recorder = RunRecorder(int(ds.initial.t_ns), mcap)
+
+    def on_epoch(nav) -> None:
+        recorder.on_epoch(nav)
+        progress.on_epoch(nav)
+
     res = run_replay(ds, outages=list(outages), outage_every=every,
-                     compensator=make_compensator(compensation, target, seed))
+                     compensator=make_compensator(compensation, target, seed), on_epoch=on_epoch)
+    progress.close()
+    recorder.finish(ds, sensor_events(ds, list(outages), every)[1] if mcap is not None else [], res.reports)
     metrics = evaluate(ds, res)
     learned = compensation != "none"
     metrics["compensation"] = {"model": compensation, "target": target if learned else None,
                                "seed": seed if learned else None}
     if out is not None:
         write_outputs(out, ds, res, metrics)
+        recorder.write(out, res.reports, spec)
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
     if not as_json and (heading_unknown or adaptive_r is not None):
         click.echo(_alignment_summary(res.status, int(ds.initial.t_ns)))
     if out is not None and not as_json:
-        click.echo(f"wrote {out / 'nav.txt'}, {out / 'nav.csv'}, {out / 'metrics.json'}")
+        click.echo(f"wrote {out / 'nav.txt'}, {out / 'nav.csv'}, {out / 'metrics.json'}, aid.csv, biases.csv")
+    if mcap is not None and not as_json:
+        click.echo(f"wrote {mcap} (opens in Foxglove: map, 3-D pose, every message)")
     return metrics
 
 
@@ -109,6 +125,10 @@ _outage_opts = [
     click.option("--seed", type=int, default=0, show_default=True,
                  help="Seed of the learned model (ANFIS: k-means rule base and premises; Elman: initial weights)."),
     click.option("-v", "--verbose", count=True, help="Log engine events (-v: warnings, -vv: debug)."),
+    click.option("--mcap", type=click.Path(dir_okay=False, path_type=Path), default=None,
+                 help="Also write the run as an MCAP recording that Foxglove shows without configuration "
+                 "(foxglove.LocationFix, PoseInFrame, FrameTransform, the zennav messages; log time = sample time)."),
+    click.option("-q", "--quiet", is_flag=True, help="No progress line on stderr (none either when not a terminal)."),
 ]
 
 
@@ -140,7 +160,7 @@ def _setup_logging(verbose: int) -> None:
                    "file's (off).")
 @_with_outage_opts
 def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, outages, every, out, as_json,
-           compensation, target, seed, verbose):
+           compensation, target, seed, verbose, mcap, quiet):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
@@ -151,4 +171,23 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, ou
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
-                   heading_unknown, adaptive_r, seed, params, nhc)
+                   heading_unknown, adaptive_r, seed, params, nhc, mcap, quiet)
+
+
+@click.command("report")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Where to write the plots and index.html [RUN_DIR/report].")
+@click.option("--dataset", default=None, help="The run's dataset spec, for its truth [RUN_DIR/run.json's, else the "
+              "name in metrics.json] (a demo folder: sim:car, with -o duration_s=... for a shorter drive).")
+@click.option("-o", "--option", "options", multiple=True, help="Loader option key=value of --dataset (repeatable).")
+def report(run_dir, out, dataset, options):
+    """Plots and one self-contained HTML page of a run folder (zennav replay --out, zennav demo): track with the
+    GNSS outages, position errors against time, innovation test ratios per aid source, estimated biases with
+    their 1-sigma, learned answers against the truth, and the accuracy table (forward and smoothed/ side by side)."""
+    from zennav.services.ingest import _parse_options  # the ingest's -o syntax
+
+    from .report import write_report
+
+    page = write_report(run_dir, out, dataset, _parse_options(options))
+    click.echo(f"wrote {page} and {', '.join(p.name for p in sorted(page.parent.glob('*.png')))}")

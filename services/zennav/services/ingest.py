@@ -89,6 +89,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--linger", type=float, default=1.0,
                    help="seconds to stay connected after the end when no ins acknowledgement is awaited")
     p.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before streaming")
+    p.add_argument("--gnss-receiver", default=None, metavar="LINK",
+                   help="GNSS from a live NMEA/UBX receiver instead of the dataset's: serial:PORT[:BAUD], "
+                        "tcp:HOST:PORT or file:PATH (zennav.receivers; the IMU still comes from the dataset)")
+    p.add_argument("--gnss-latency", type=float, default=0.5,
+                   help="[s] how long an IMU sample waits for the receiver's fixes up to its time")
+    p.add_argument("--gnss-silence", type=float, default=2.0, help="[s] receiver silence that is counted and logged")
     return add_bus_args(p)
 
 
@@ -114,6 +120,14 @@ def main(argv=None) -> int:
         if args.heading_unknown:  # travels to the ins in stream_start's InitialState
             ds.initial = replace(ds.initial, heading_known=False)
         windows, events = sensor_events(ds, args.outage, args.outage_every)
+        receiver = None
+        if args.gnss_receiver:  # the dataset's GNSS replaced by a live receiver's (zennav.receivers.live)
+            from zennav.receivers.live import live_messages
+            from zennav.receivers.receiver import GnssReceiver
+
+            receiver = GnssReceiver(args.gnss_receiver, int(ds.initial.t_ns), silence_s=args.gnss_silence,
+                                    log=log).start()
+            run.counters = lambda: {**stats, **{f"receiver_{k}": v for k, v in receiver.counts.items()}}
         n_imu = sum(1 for e in events if e[0] == "imu")
         n_gnss = len(events) - n_imu
         log.info("%s: %d IMU samples, %d GNSS fixes, %d outage windows; speed %s", ds.name, n_imu, n_gnss,
@@ -133,8 +147,13 @@ def main(argv=None) -> int:
         if run.stopping:
             return 0
         run.set_state("running", f"streaming {ds.name}")
-        last_cseq = _stream(run, stream_messages(ds, windows, events, args.batch), int(ds.initial.t_ns), speed,
+        msgs = (stream_messages(ds, windows, events, args.batch) if receiver is None else
+                live_messages(ds, windows, events, receiver, speed, args.gnss_latency, lambda: run.stopping))
+        last_cseq = _stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0,
                             {"stream": p_stream, "imu": p_imu, "gnss": p_gnss}, stats)
+        if receiver is not None:
+            receiver.stop()
+            log.info("receiver %s: %s", args.gnss_receiver, receiver.counts)
         if last_cseq is None:
             return 0
         log.info("stream done: %d IMU, %d GNSS, last cseq %d", stats["imu"], stats["gnss"], last_cseq)

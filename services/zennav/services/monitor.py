@@ -38,6 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=2.0, help="observation time with --once [s]")
     p.add_argument("--interval", type=float, default=1.0, help="refresh period [s]")
     p.add_argument("--ring", type=int, default=65536, help="receive ring capacity")
+    p.add_argument("--prometheus", type=int, default=None, metavar="PORT",
+                   help="expose the snapshot as Prometheus metrics on http://--prometheus-addr:PORT/metrics")
+    p.add_argument("--prometheus-addr", default="127.0.0.1", help="address of the metrics endpoint")
     p.add_argument("--announce", action=argparse.BooleanOptionalAction, default=None,
                    help="declare a liveliness token (default: yes when running continuously, no with --once)")
     return add_bus_args(p)
@@ -55,6 +58,11 @@ def main(argv=None) -> int:
     run.bus.watch_alive(state.on_alive)
     _query_latest(run, state, (k.svc_status(), k.nav_status(), k.attitude(), k.learn_model()))
     run.counters = lambda: {"keys": len(state.per_key)}
+    exporter = None
+    if args.prometheus is not None:  # zennav.prometheus: the latest snapshot at /metrics
+        from zennav.prometheus import serve
+
+        exporter = serve(args.prometheus, args.prometheus_addr)
     try:
         if announce:
             run.ready("running", "watching " + k.all())
@@ -73,6 +81,8 @@ def main(argv=None) -> int:
         state.snapshot()
         while not run.wait(args.interval):
             snap = state.snapshot()
+            if exporter is not None:
+                exporter.update(snap)
             if args.json:
                 print(json.dumps(snap), flush=True)
             else:
