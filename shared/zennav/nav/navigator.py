@@ -248,16 +248,22 @@ class Navigator:
 
     # ------------------------------------------------------------------ for the sources
     def update(self, source: AidSource, m: Measurement) -> bool:
-        """The engine's one measurement update of a source's measurement: the source's adaptive R (gated only),
-        Joseph form with the chi-square gate, feedback; counted ({name}_fused / {name}_gate) and reported."""
+        """The engine's one measurement update of a source's measurement: the source's adaptive R and consistency
+        monitor (gated only; the monitor may scale P first, counted {name}_inflated), Joseph form with the
+        chi-square gate, feedback; counted ({name}_fused / {name}_gate) and reported."""
         name, z, H, R = source.name, m.z, m.H, m.R
         gate = self.gate_threshold(len(z)) if m.gated else None
         est = source.adaptive if m.gated else None
         if est is not None:
             R = est.update(z, H @ self.kf.P @ H.T, R)
         source.R_used = R
-        res = self.kf.update(z, H, R, gate, m.gain_states)
         reason, faults = "", list(m.faults)
+        monitor = source.consistency if m.gated else None
+        if monitor is not None and (factor := monitor.factor(z, H @ self.kf.P @ H.T, R)) > 1.0:
+            self.kf.P *= factor  # overconfident on small, steady innovations: fading memory (nav.consistency)
+            self.counters[f"{name}_inflated"] += 1
+            faults.append("inflated")
+        res = self.kf.update(z, H, R, gate, m.gain_states)
         if res.fused:
             self.feedback(res.dx)
             self.last_dx = res.dx

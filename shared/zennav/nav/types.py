@@ -278,6 +278,12 @@ class NavConfig:
     nhc: bool = False  # non-holonomic constraint of a land vehicle (zennav.nav.aid.constraints)
     nhc_std_mps: float = 0.1  # 1-sigma of the constrained lateral and vertical body velocity [m/s]
     nhc_every_s: float = 0.1  # period of the constraint's updates [s of data time]
+    consistency: bool = False  # NIS monitor and adaptive fading factor of the GNSS sources (nav.consistency)
+    consistency_window: int = 10  # updates in the NIS window
+    consistency_test_probability: float = 0.999  # chi-square quantile of the window's NIS test (overconfident above)
+    consistency_max_pos_m: float = 1.0  # largest position innovation [m] (and step) an inflating window may hold
+    consistency_max_vel_mps: float = 0.5  # the same for the velocity innovation [m/s]
+    consistency_max_factor: float = 100.0  # largest covariance factor of one update
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 

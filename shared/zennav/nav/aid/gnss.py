@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..adaptive_r import AdaptiveR
+from ..consistency import ConsistencyMonitor
 from ..aiding import antenna_velocity, position_model, velocity_model
 from ..eskf import POS, VEL
 from ..types import NS, GnssFix, GnssState, NavConfig
@@ -55,6 +56,14 @@ def adaptive_r(config: NavConfig, dim: int = 3) -> AdaptiveR | None:
                      config.adaptive_floor, config.adaptive_ceiling)
 
 
+def consistency_monitor(config: NavConfig, max_innovation: float, dim: int = 3) -> ConsistencyMonitor | None:
+    """The configured consistency monitor of a GNSS source (max_innovation in its unit), None when it is off."""
+    if not config.consistency:
+        return None
+    return ConsistencyMonitor(dim, config.consistency_window, config.consistency_test_probability, max_innovation,
+                              config.consistency_max_factor)
+
+
 class GnssPosition(AidSource):
     """GNSS antenna position [rad, rad, m] with its reported NED 1-sigma floored at pos_std_floor_m.
 
@@ -64,7 +73,7 @@ class GnssPosition(AidSource):
     inputs = ("gnss",)
 
     def __init__(self, config: NavConfig, t0_ns: int):
-        super().__init__("gnss_pos", adaptive_r(config))
+        super().__init__("gnss_pos", adaptive_r(config), consistency_monitor(config, config.consistency_max_pos_m))
         self.config = config
         self.gnss_state = GnssState.VALID
         self.valid_t_ns = int(t0_ns)
@@ -235,7 +244,7 @@ class GnssVelocity(AidSource):
     inputs = ("gnss",)
 
     def __init__(self, config: NavConfig, t0_ns: int):
-        super().__init__("gnss_vel", adaptive_r(config))
+        super().__init__("gnss_vel", adaptive_r(config), consistency_monitor(config, config.consistency_max_vel_mps))
         self.config = config
 
     def on_input(self, nav, ctx: FixContext) -> bool:
