@@ -19,7 +19,6 @@ Without --kf-gins only zennav runs.
 from __future__ import annotations
 
 import argparse
-import math
 import subprocess
 import sys
 import tempfile
@@ -28,34 +27,19 @@ from pathlib import Path
 
 import numpy as np
 
-from zennav.datasets import kfgins
+from zennav.datasets import kfgins, rtklibexplorer
 from zennav.datasets.registry import load_dataset
 from zennav.metrics import evaluate
-from zennav.nav import earth
 from zennav.nav.rotation import euler_to_quat
-from zennav.nav.types import NS, Dataset, ImuNoise
+from zennav.nav.types import NS, Dataset
 from zennav.params import load_filter_params, nav_config
 from zennav.replay import ReplayResult, outage_windows, run_end_ns, run_replay
-
-# rtklibexplorer drive_0708, IMU TDK ICM-45686 (drive_config.py). White noise: the datasheet densities quoted by the
-# dataset README, 0.0038 deg/s/sqrt(Hz) and 70 ug/sqrt(Hz). Bias: the README's bias random-walk densities
-# (3.8e-5 deg/s^2/sqrt(Hz), 7 ug/s/sqrt(Hz)) as a first-order Gauss-Markov process with KF-GINS's default 1 h
-# correlation time: sigma = q * sqrt(tau / 2), i.e. 5.8 deg/h and 0.30 mg.
-ICM45686_TAU_S = 3600.0
-ICM45686_DATASHEET = ImuNoise(
-    arw=math.radians(0.0038),
-    vrw=70e-6 * earth.G0,
-    gyro_bias_std=math.radians(3.8e-5) * math.sqrt(ICM45686_TAU_S / 2.0),
-    accel_bias_std=7e-6 * earth.G0 * math.sqrt(ICM45686_TAU_S / 2.0),
-    gyro_bias_tau=ICM45686_TAU_S,
-    accel_bias_tau=ICM45686_TAU_S,
-)
 
 
 def rtk_case() -> Dataset:
     """The rtklibexplorer drive as a KF-GINS user writes it: RTK std as reported, datasheet noise, no velocity."""
     ds = load_dataset("rtklibexplorer")
-    ds.config = ds.config.with_(imu_noise=ICM45686_DATASHEET)
+    ds.config = ds.config.with_(imu_noise=rtklibexplorer.DATASHEET_NOISE)
     ds.gnss = replace(ds.gnss, v_n=None, std_v_n=None)
     return ds
 

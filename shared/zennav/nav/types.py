@@ -221,6 +221,8 @@ class NavConfig:
         formal RTK sigmas leave out (antenna phase centre, multipath, IMU/GNSS time-tag jitter).
     gate_reset_s: when position fixes keep arriving but are all rejected for this long, the INS (not the GNSS)
         is taken to be wrong: position/velocity covariance is reset from the innovation and the fix is fused.
+    gate_reset_max_rate_mps: ... but only while the horizontal innovation changes by at most this [m/s] from one
+        rejected fix to the next (an INS that is off drifts slowly; a spoofer dragging the fixes away does not).
     reacquire_fixes: after a loss of GNSS (no fix for outage_timeout_s), this many consecutive rejected fixes
         trigger the same reset (the INS drifted beyond its own uncertainty during the outage).
 
@@ -255,6 +257,7 @@ class NavConfig:
     pos_std_floor_m: float = 0.05
     vel_std_floor_mps: float = 0.1
     gate_reset_s: float = 10.0
+    gate_reset_max_rate_mps: float = 3.0
     reacquire_fixes: int = 3
     use_gnss_velocity: bool = True
     align_min_speed_mps: float = 3.0
@@ -278,7 +281,7 @@ class NavConfig:
     nhc: bool = False  # non-holonomic constraint of a land vehicle (zennav.nav.aid.constraints)
     nhc_std_mps: float = 0.1  # 1-sigma of the constrained lateral and vertical body velocity [m/s]
     nhc_every_s: float = 0.1  # period of the constraint's updates [s of data time]
-    consistency: bool = False  # NIS monitor and adaptive fading factor of the GNSS sources (nav.consistency)
+    consistency: bool = True  # NIS monitor and adaptive fading factor of the GNSS sources (nav.consistency)
     consistency_window: int = 10  # updates in the NIS window
     consistency_test_probability: float = 0.999  # chi-square quantile of the window's NIS test (overconfident above)
     consistency_max_pos_m: float = 1.0  # largest position innovation [m] (and step) an inflating window may hold

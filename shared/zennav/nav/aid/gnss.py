@@ -10,9 +10,14 @@ Faults, each rejection counted under its reason and reported:
   a jump in); kept out of the adaptive R estimate; in coarse alignment: further than max_jump_m from the
   dead-reckoned position, at most reacquire_fixes times in a row;
 - gate (gnss_pos_gate, gnss_vel_gate): the chi-square gate of the update;
-- gate trapped: position fixes keep arriving but are all rejected for gate_reset_s, or reacquire_fixes of them
-  after a loss of GNSS: the INS (not the GNSS) is taken to be wrong, position and velocity covariance are reset
-  from the innovation and the fix is fused ungated.
+- gate trapped: position fixes keep arriving but are all rejected for gate_reset_s while their horizontal
+  innovation is steady (it changes by at most gate_reset_max_rate_mps since the run's previous fix: an INS that is
+  off, not a fix source that drags it away), or reacquire_fixes of them after a loss of GNSS: the INS (not the
+  GNSS) is taken to be wrong, position and velocity covariance are reset from the innovation and the fix is fused
+  ungated.
+- overconfidence (with config.consistency): each source's consistency monitor (zennav.nav.consistency) scales the
+  covariance before an update when its NIS window says the filter is overconfident on small, steady innovations,
+  so good fixes pass the gate instead of trapping it; counted {source}_inflated, fault "inflated".
 """
 from __future__ import annotations
 
@@ -82,6 +87,7 @@ class GnssPosition(AidSource):
         self.streak_start_t_ns: int | None = None  # first of the current run of rejected position fixes
         self.streak_fixes = 0
         self.streak_after_loss = False
+        self.streak_prev: tuple[int, float, float] | None = None  # (t_ns, north, east [m]) of its last innovation
 
     # ------------------------------------------------------------------ input checks
     def admit(self, nav, fix: GnssFix) -> bool:
@@ -131,7 +137,7 @@ class GnssPosition(AidSource):
             self._coarse_fix(nav, ctx, fix_llh, z)
             return False
         m = Measurement(fix.t_ns, fix_llh, z, H, R)
-        if self._gate_trapped(fix.t_ns):
+        if self._gate_trapped(fix.t_ns, z):
             self._reset_position_velocity(nav, z, R, fix.t_ns)
             m.gated, m.faults = False, ("gate_trapped",)
             fused = nav.update(self, m)
@@ -141,7 +147,7 @@ class GnssPosition(AidSource):
             if 0 < (fix.t_ns - self.valid_t_ns) / NS < 5.0:
                 self.interval_s = (fix.t_ns - self.valid_t_ns) / NS
             self.valid_t_ns = fix.t_ns
-            self.streak_start_t_ns, self.streak_fixes = None, 0
+            self.streak_start_t_ns, self.streak_fixes, self.streak_prev = None, 0, None
             if self.gnss_state != GnssState.VALID:
                 nav.hold_learning(fix.t_ns)
                 log.warning("GNSS recovered at t=%.3f s after outage", fix.t_ns / NS)
@@ -151,6 +157,7 @@ class GnssPosition(AidSource):
             if self.streak_start_t_ns is None:
                 self.streak_start_t_ns = fix.t_ns
             self.streak_fixes += 1
+            self.streak_prev = (fix.t_ns, float(z[0]), float(z[1]))
         ctx.position_fused = fused
         return fused
 
@@ -175,14 +182,19 @@ class GnssPosition(AidSource):
                     m.observation.tolist(), z.tolist(), np.diag(S).tolist(), ratio, ("jump",))
         return True
 
-    def _gate_trapped(self, t_ns: int) -> bool:
-        """True when the current run of rejected position fixes says the INS has left its own uncertainty."""
+    def _gate_trapped(self, t_ns: int, z: np.ndarray) -> bool:
+        """True when the current run of rejected position fixes says the INS has left its own uncertainty (z: this
+        fix's innovation [m, NED])."""
         if self.streak_start_t_ns is None:
             return False
         cfg = self.config
         if self.streak_after_loss and self.streak_fixes >= cfg.reacquire_fixes:
             return True
-        return (t_ns - self.streak_start_t_ns) / NS >= cfg.gate_reset_s
+        if (t_ns - self.streak_start_t_ns) / NS < cfg.gate_reset_s or self.streak_prev is None:
+            return False
+        t_prev, north, east = self.streak_prev
+        rate = math.hypot(z[0] - north, z[1] - east) / max((t_ns - t_prev) / NS, 1e-9)
+        return rate <= cfg.gate_reset_max_rate_mps
 
     def _reset_position_velocity(self, nav, z: np.ndarray, R: np.ndarray, t_ns: int) -> None:
         """Decorrelate position and velocity and widen their variances to cover the innovation z [m] and the
@@ -227,7 +239,8 @@ class GnssPosition(AidSource):
         return {**super().get_state(), "gnss_state": str(self.gnss_state), "valid_t_ns": int(self.valid_t_ns),
                 "interval_s": self.interval_s, "last_fix_t_ns": int(self.last_fix_t_ns),
                 "streak_start_t_ns": self.streak_start_t_ns, "streak_fixes": int(self.streak_fixes),
-                "streak_after_loss": bool(self.streak_after_loss)}
+                "streak_after_loss": bool(self.streak_after_loss),
+                "streak_prev": None if self.streak_prev is None else list(self.streak_prev)}
 
     def set_state(self, state: dict) -> None:
         super().set_state(state)
@@ -236,6 +249,8 @@ class GnssPosition(AidSource):
         self.last_fix_t_ns = int(state["last_fix_t_ns"])
         self.streak_start_t_ns = state["streak_start_t_ns"]
         self.streak_fixes, self.streak_after_loss = int(state["streak_fixes"]), bool(state["streak_after_loss"])
+        prev = state["streak_prev"]
+        self.streak_prev = None if prev is None else (int(prev[0]), float(prev[1]), float(prev[2]))
 
 
 class GnssVelocity(AidSource):
