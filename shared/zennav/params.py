@@ -61,6 +61,7 @@ FILTER: dict[str, Param] = {
     "outage_timeout_s": Param("outage", "s"),
     "gate_reset_s": Param("outage", "s"),
     "gate_reset_max_rate_mps": Param("outage", "m/s"),
+    "gate_reset_unsteady_s": Param("outage", "s"),
     "reacquire_fixes": Param("outage", "", "int"),
     # covariance propagation
     "cov_interval_s": Param("covariance", "s"),

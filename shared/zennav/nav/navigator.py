@@ -244,6 +244,8 @@ class Navigator:
             "alignment": self.alignment.status(self),
             "adaptive_r": self.config.adaptive_r,
             "measurement_noise": {name: src.status() for name, src in self.sources.items() if src.R_used is not None},
+            "consistency": {name: src.consistency.status() for name, src in self.sources.items()
+                            if src.consistency is not None},
         }
 
     # ------------------------------------------------------------------ for the sources

@@ -221,8 +221,11 @@ class NavConfig:
         formal RTK sigmas leave out (antenna phase centre, multipath, IMU/GNSS time-tag jitter).
     gate_reset_s: when position fixes keep arriving but are all rejected for this long, the INS (not the GNSS)
         is taken to be wrong: position/velocity covariance is reset from the innovation and the fix is fused.
-    gate_reset_max_rate_mps: ... but only while the horizontal innovation changes by at most this [m/s] from one
-        rejected fix to the next (an INS that is off drifts slowly; a spoofer dragging the fixes away does not).
+    gate_reset_max_rate_mps: with the consistency monitor, that reset only while the horizontal innovation changes by
+        at most this [m/s] from one rejected fix to the next (an INS that is off drifts slowly; fixes dragged away
+        by a spoofer do not) ...
+    gate_reset_unsteady_s: ... or once they have been rejected this long, whatever the innovation does (a drag that
+        long cannot be told from a diverging INS by innovations alone).
     reacquire_fixes: after a loss of GNSS (no fix for outage_timeout_s), this many consecutive rejected fixes
         trigger the same reset (the INS drifted beyond its own uncertainty during the outage).
 
@@ -258,6 +261,7 @@ class NavConfig:
     vel_std_floor_mps: float = 0.1
     gate_reset_s: float = 10.0
     gate_reset_max_rate_mps: float = 3.0
+    gate_reset_unsteady_s: float = 30.0
     reacquire_fixes: int = 3
     use_gnss_velocity: bool = True
     align_min_speed_mps: float = 3.0

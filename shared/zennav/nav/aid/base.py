@@ -60,7 +60,8 @@ class Measurement:
 class AidSource:
     """Base of the aiding sources. name: the source name in reports, counters and the key nav/aid/<name>;
     inputs: the input kinds the engine routes to ``on_input``; adaptive: the adaptive-R estimator or None;
-    consistency: the consistency monitor (zennav.nav.consistency) or None; R_used: R of the last update [unit^2]; last_fused_t_ns: time of the last fused measurement (-1: never)."""
+    consistency: the consistency monitor (zennav.nav.consistency) or None; R_used: R of the last update [unit^2];
+    last_fused_t_ns: time of the last fused measurement (-1: never)."""
 
     inputs: tuple[str, ...] = ()
 

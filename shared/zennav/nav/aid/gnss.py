@@ -10,11 +10,13 @@ Faults, each rejection counted under its reason and reported:
   a jump in); kept out of the adaptive R estimate; in coarse alignment: further than max_jump_m from the
   dead-reckoned position, at most reacquire_fixes times in a row;
 - gate (gnss_pos_gate, gnss_vel_gate): the chi-square gate of the update;
-- gate trapped: position fixes keep arriving but are all rejected for gate_reset_s while their horizontal
-  innovation is steady (it changes by at most gate_reset_max_rate_mps since the run's previous fix: an INS that is
-  off, not a fix source that drags it away), or reacquire_fixes of them after a loss of GNSS: the INS (not the
-  GNSS) is taken to be wrong, position and velocity covariance are reset from the innovation and the fix is fused
-  ungated.
+- gate trapped: position fixes keep arriving but are all rejected for gate_reset_s, or reacquire_fixes of them
+  after a loss of GNSS: the INS (not the GNSS) is taken to be wrong, position and velocity covariance are reset
+  from the innovation and the fix is fused ungated. With the consistency monitor, which keeps the INS's covariance
+  honest, a run of rejected fixes blames the INS after gate_reset_s only while their horizontal innovation is
+  steady (it changes by at most gate_reset_max_rate_mps from one rejected fix to the next: an INS that is off, not
+  fixes dragged away from it), and after gate_reset_unsteady_s whatever it does (by innovations alone a drag that
+  long cannot be told from a diverging INS).
 - overconfidence (with config.consistency): each source's consistency monitor (zennav.nav.consistency) scales the
   covariance before an update when its NIS window says the filter is overconfident on small, steady innovations,
   so good fixes pass the gate instead of trapping it; counted {source}_inflated, fault "inflated".
@@ -28,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..adaptive_r import AdaptiveR
-from ..consistency import ConsistencyMonitor
 from ..aiding import antenna_velocity, position_model, velocity_model
+from ..consistency import ConsistencyMonitor
 from ..eskf import POS, VEL
 from ..types import NS, GnssFix, GnssState, NavConfig
 from .base import AidSource, Measurement
@@ -190,8 +192,11 @@ class GnssPosition(AidSource):
         cfg = self.config
         if self.streak_after_loss and self.streak_fixes >= cfg.reacquire_fixes:
             return True
-        if (t_ns - self.streak_start_t_ns) / NS < cfg.gate_reset_s or self.streak_prev is None:
+        streak_s = (t_ns - self.streak_start_t_ns) / NS
+        if streak_s < cfg.gate_reset_s:
             return False
+        if self.consistency is None or self.streak_prev is None or streak_s >= cfg.gate_reset_unsteady_s:
+            return True
         t_prev, north, east = self.streak_prev
         rate = math.hypot(z[0] - north, z[1] - east) / max((t_ns - t_prev) / NS, 1e-9)
         return rate <= cfg.gate_reset_max_rate_mps
