@@ -44,10 +44,12 @@ def rtk_case() -> Dataset:
     return ds
 
 
-def uav_case(seed: int = 0) -> Dataset:
-    """The simulated multirotor flight with 5 Hz GNSS, position fixes only (what KF-GINS fuses)."""
+def uav_case(seed: int = 0, velocity: bool = False) -> Dataset:
+    """The simulated multirotor flight with 5 Hz GNSS; position fixes only (what KF-GINS fuses) unless velocity
+    (then the files carry the zennav velocity file too, which only zennav reads)."""
     ds = load_dataset("sim:multirotor", duration_s=600.0, gnss_rate_hz=5.0, seed=seed)
-    ds.gnss = replace(ds.gnss, v_n=None, std_v_n=None)
+    if not velocity:
+        ds.gnss = replace(ds.gnss, v_n=None, std_v_n=None)
     return ds
 
 
@@ -105,7 +107,8 @@ def _fmt(x) -> str:
 
 def print_rows(label: str, result: dict) -> None:
     for program, m in result.items():
-        print(f"{label:<14} {program:<8} h_rms {_fmt(m['horizontal_rms_m']):>8} m  v_rms {_fmt(m['vertical_rms_m']):>7} m"
+        print(f"{label:<14} {program:<8} h_rms {_fmt(m['horizontal_rms_m']):>8} m"
+              f"  v_rms {_fmt(m['vertical_rms_m']):>7} m"
               f"  outage max drift RMS {_fmt(m['outage_max_horizontal_rms_m']):>8} m"
               f"  max {_fmt(m['outage_max_horizontal_max_m']):>8} m  ({len(m['outages'])} windows)")
         counters = m["engine"].get("counters") if m.get("engine") else None
@@ -128,8 +131,9 @@ def main(argv=None) -> int:
                     help="outage length [s] (repeatable; the uav case's default: 30, 60, 120)")
     ap.add_argument("--every", type=float, default=None, help="outage period [s] (default: 4 x the outage, >= 60 s)")
     ap.add_argument("--seed", type=int, default=0, help="simulator seed of the uav case")
+    ap.add_argument("--velocity", action="store_true", help="uav case: GNSS velocity in the files (zennav only)")
     args = ap.parse_args(argv)
-    ds = rtk_case() if args.case == "rtk" else uav_case(args.seed)
+    ds = rtk_case() if args.case == "rtk" else uav_case(args.seed, args.velocity)
     outages = args.outage if args.outage is not None else ([] if args.case == "rtk" else [30.0, 60.0, 120.0])
     print(f"{ds.name}: {(run_end_ns(ds) - ds.initial.t_ns) / NS:.0f} s, IMU noise {ds.config.imu_noise}")
     print_rows("full GNSS", compare(ds, None, args.kf_gins, args.params, 0.0))
