@@ -14,7 +14,9 @@ solutions are scored by zennav.metrics.evaluate against the same truth. zennav r
     python benchmarks/kfgins_compare.py --kf-gins /tmp/kfgins/bin/KF-GINS rtk
     python benchmarks/kfgins_compare.py --kf-gins /tmp/kfgins/bin/KF-GINS uav --outage 30 --outage 60
 
-Without --kf-gins only zennav runs.
+Without --kf-gins only zennav runs. KF-GINS builds from its public source with its bundled third-party libraries
+(Eigen 3.3.9, yaml-cpp 0.7.0, abseil): ``cmake -S KF-GINS -B KF-GINS/build -DCMAKE_BUILD_TYPE=Release && make -C
+KF-GINS/build``, the binary in KF-GINS/bin/ (its dataset/ files are not needed).
 """
 from __future__ import annotations
 
@@ -82,6 +84,7 @@ def run_kfgins(binary: Path, yaml_path: Path, windows) -> dict:
     nav = kfgins.load_nav(folder / "KF_GINS_Navresult.nav")
     week = int(ds.imu.t_ns[0] // kfgins.WEEK_NS)
     t_ns = nav.t_ns + week * kfgins.WEEK_NS
+    assert nav.euler is not None and nav.v_n is not None  # load_nav reads all fields by default
     q_nb = np.array([euler_to_quat(e) for e in nav.euler])
     n = len(t_ns)
     res = ReplayResult("KF-GINS", t_ns, nav.llh, nav.v_n, q_nb, np.zeros((n, 3)), np.zeros(n, bool), windows)
