@@ -92,3 +92,20 @@ def test_overconfident_filter_recovers_instead_of_trapping():
     assert on_.get("gnss_pos_inflated", 0) > 0 and on_.get("gnss_pos_gate", 0) <= 5
     assert on_.get("gate_reset", 0) == 0 and on_.get("outage_declared", 0) == 0
     assert rms_on < 0.1 and rms_on < 0.2 * rms_off
+
+
+def test_the_monitor_counts_each_aid_sources_fault_flags():
+    """The consistency monitor's inflations reach the monitor as the 'inflated' flag of nav/aid/gnss_pos records."""
+    from zennav import messages as M
+    from zennav.nodes.monitor import MonitorState, format_table
+
+    keys = M.Keys("car")
+    st = MonitorState(keys)
+    for seq, faults in enumerate((["inflated"], [], ["inflated"], ["jump"])):
+        rep = M.make("aid_report", 5 + seq, source="gnss_pos", observation=[1.0], innovation=[0.1],
+                     innovation_var=[1.0], test_ratio=0.5, fused=faults != ["jump"], reason="", faults=faults)
+        rep.update(src="ins", seq=seq, pub_ns=0)
+        st.on_sample(keys.nav_aid("gnss_pos"), M.encode(rep), 0)
+    snap = st.snapshot()
+    assert snap["aid"]["gnss_pos"]["faults"] == {"inflated": 2, "jump": 1}
+    assert "faults {'inflated': 2, 'jump': 1}" in format_table(snap)
