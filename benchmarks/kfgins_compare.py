@@ -98,6 +98,8 @@ def compare(ds: Dataset, outage_s: float | None, kf_gins: Path | None, params: P
                                                                                   every_s - outage_s))
     with tempfile.TemporaryDirectory(prefix="kfgins_compare_") as tmp:
         yaml_path = export(ds, Path(tmp), windows)
+        week_ns = int(ds.imu.t_ns[0] // kfgins.WEEK_NS) * kfgins.WEEK_NS  # the files' times: seconds of week
+        windows = [(a - week_ns, b - week_ns) for a, b in windows]
         out = {"zennav": run_zennav(yaml_path, windows, params)}
         if kf_gins is not None:
             out["KF-GINS"] = run_kfgins(kf_gins, yaml_path, windows)

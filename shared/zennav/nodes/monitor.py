@@ -225,7 +225,8 @@ def format_table(snap: dict) -> str:
                      f"earth+transport rate {rate}")
     for src, a in snap["aid"].items():
         lines.append(f"  aid {src:<10} n {a['count']:<7} fused {a['fused']:<7} test ratio last {a['last_test_ratio']} "
-                     f"p50 {a['p50_test_ratio']} max {a['max_test_ratio']}  rejected {a['rejected']}  faults {a['faults']}")
+                     f"p50 {a['p50_test_ratio']} max {a['max_test_ratio']}  rejected {a['rejected']}  "
+                     f"faults {a['faults']}")
     if snap["models"]:
         lines.append("  models " + ", ".join(f"{n} v{m['version']}" for n, m in snap["models"].items()))
     else:
