@@ -16,7 +16,8 @@ Faults, each rejection counted under its reason and reported:
   honest, a run of rejected fixes blames the INS after gate_reset_s only while their horizontal innovation is
   steady (it changes by at most gate_reset_max_rate_mps from one rejected fix to the next: an INS that is off, not
   fixes dragged away from it), and after gate_reset_unsteady_s whatever it does (by innovations alone a drag that
-  long cannot be told from a diverging INS).
+  long cannot be told from a diverging INS); a run that starts within gate_reset_unsteady_s of an outage recovery
+  or a reset, when the INS itself is suspect, after gate_reset_s whatever it does.
 - overconfidence (with config.consistency): each source's consistency monitor (zennav.nav.consistency) scales the
   covariance before an update when its NIS window says the filter is overconfident on small, steady innovations,
   so good fixes pass the gate instead of trapping it; counted {source}_inflated, fault "inflated".
@@ -90,6 +91,7 @@ class GnssPosition(AidSource):
         self.streak_fixes = 0
         self.streak_after_loss = False
         self.streak_prev: tuple[int, float, float] | None = None  # (t_ns, north, east [m]) of its last innovation
+        self.suspect_until_t_ns = int(t0_ns)  # the INS is suspect until then (after a recovery or a reset)
 
     # ------------------------------------------------------------------ input checks
     def admit(self, nav, fix: GnssFix) -> bool:
@@ -152,6 +154,7 @@ class GnssPosition(AidSource):
             self.streak_start_t_ns, self.streak_fixes, self.streak_prev = None, 0, None
             if self.gnss_state != GnssState.VALID:
                 nav.hold_learning(fix.t_ns)
+                self._suspect_ins(fix.t_ns)
                 log.warning("GNSS recovered at t=%.3f s after outage", fix.t_ns / NS)
                 nav.counters["outage_recovered"] += 1
             self.gnss_state = GnssState.VALID
@@ -195,7 +198,8 @@ class GnssPosition(AidSource):
         streak_s = (t_ns - self.streak_start_t_ns) / NS
         if streak_s < cfg.gate_reset_s:
             return False
-        if self.consistency is None or self.streak_prev is None or streak_s >= cfg.gate_reset_unsteady_s:
+        if self.consistency is None or self.streak_prev is None or streak_s >= cfg.gate_reset_unsteady_s \
+                or self.streak_start_t_ns < self.suspect_until_t_ns:
             return True
         t_prev, north, east = self.streak_prev
         rate = math.hypot(z[0] - north, z[1] - east) / max((t_ns - t_prev) / NS, 1e-9)
@@ -214,8 +218,14 @@ class GnssPosition(AidSource):
         P[VEL, VEL] = np.diag(var_vel)
         nav.counters["gate_reset"] += 1
         nav.hold_learning(t_ns)
+        self._suspect_ins(t_ns)
         log.warning("t=%.3f s: %d GNSS fixes rejected in a row, INS taken as wrong: covariance reset, fix fused",
                     t_ns / NS, self.streak_fixes)
+
+    def _suspect_ins(self, t_ns: int) -> None:
+        """After an outage or a covariance reset the INS is suspect for gate_reset_unsteady_s: a run of rejected fixes
+        starting then resets after gate_reset_s whatever its innovation does."""
+        self.suspect_until_t_ns = t_ns + int(self.config.gate_reset_unsteady_s * NS)
 
     def _coarse_fix(self, nav, ctx: FixContext, fix_llh: np.ndarray, z: np.ndarray) -> None:
         """Coarse alignment (z: INS antenna minus fix [m, NED]): reject a jump from the dead-reckoned position,
@@ -245,7 +255,8 @@ class GnssPosition(AidSource):
                 "interval_s": self.interval_s, "last_fix_t_ns": int(self.last_fix_t_ns),
                 "streak_start_t_ns": self.streak_start_t_ns, "streak_fixes": int(self.streak_fixes),
                 "streak_after_loss": bool(self.streak_after_loss),
-                "streak_prev": None if self.streak_prev is None else list(self.streak_prev)}
+                "streak_prev": None if self.streak_prev is None else list(self.streak_prev),
+                "suspect_until_t_ns": int(self.suspect_until_t_ns)}
 
     def set_state(self, state: dict) -> None:
         super().set_state(state)
@@ -256,6 +267,7 @@ class GnssPosition(AidSource):
         self.streak_fixes, self.streak_after_loss = int(state["streak_fixes"]), bool(state["streak_after_loss"])
         prev = state["streak_prev"]
         self.streak_prev = None if prev is None else (int(prev[0]), float(prev[1]), float(prev[2]))
+        self.suspect_until_t_ns = int(state["suspect_until_t_ns"])
 
 
 class GnssVelocity(AidSource):
