@@ -60,6 +60,8 @@ FILTER: dict[str, Param] = {
     # outage declaration and recovery
     "outage_timeout_s": Param("outage", "s"),
     "gate_reset_s": Param("outage", "s"),
+    "gate_reset_max_rate_mps": Param("outage", "m/s"),
+    "gate_reset_unsteady_s": Param("outage", "s"),
     "reacquire_fixes": Param("outage", "", "int"),
     # covariance propagation
     "cov_interval_s": Param("covariance", "s"),
@@ -89,6 +91,13 @@ FILTER: dict[str, Param] = {
     "nhc": Param("constraints", "", "bool"),
     "nhc_std_mps": Param("constraints", "m/s"),
     "nhc_every_s": Param("constraints", "s"),
+    # consistency monitoring and robust gating
+    "consistency": Param("robust", "", "bool"),
+    "consistency_window": Param("robust", "", "int"),
+    "consistency_test_probability": Param("robust", ""),
+    "consistency_max_pos_m": Param("robust", "m"),
+    "consistency_max_vel_mps": Param("robust", "m/s"),
+    "consistency_max_factor": Param("robust", ""),
 }
 
 

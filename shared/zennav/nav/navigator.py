@@ -296,12 +296,15 @@ class Navigator:
             "alignment": self.alignment.status(self),
             "adaptive_r": self.config.adaptive_r,
             "measurement_noise": {name: src.status() for name, src in self.sources.items() if src.R_used is not None},
+            "consistency": {name: src.consistency.status() for name, src in self.sources.items()
+                            if src.consistency is not None},
         }
 
     # ------------------------------------------------------------------ for the sources
     def update(self, source: AidSource, m: Measurement) -> bool:
-        """The engine's one measurement update of a source's measurement: the source's adaptive R (gated only),
-        Joseph form with the chi-square gate, feedback; counted ({name}_fused / {name}_gate) and reported."""
+        """The engine's one measurement update of a source's measurement: the source's adaptive R and consistency
+        monitor (gated only; the monitor may scale P first, counted {name}_inflated), Joseph form with the
+        chi-square gate, feedback; counted ({name}_fused / {name}_gate) and reported."""
         name, z, H, R = source.name, m.z, m.H, m.R
         if H.shape[1] < self.n_states:  # a model of the INS states only: the augmented states do not enter
             H = np.hstack([H, np.zeros((H.shape[0], self.n_states - H.shape[1]))])
@@ -310,8 +313,13 @@ class Navigator:
         if est is not None:
             R = est.update(z, H @ self.kf.P @ H.T, R)
         source.R_used = R
-        res = self.kf.update(z, H, R, gate, m.gain_states)
         reason, faults = "", list(m.faults)
+        monitor = source.consistency if m.gated else None
+        if monitor is not None and (factor := monitor.factor(z, H @ self.kf.P @ H.T, R)) > 1.0:
+            self.kf.P *= factor  # overconfident on small, steady innovations: fading memory (nav.consistency)
+            self.counters[f"{name}_inflated"] += 1
+            faults.append("inflated")
+        res = self.kf.update(z, H, R, gate, m.gain_states)
         if res.fused:
             self.feedback(res.dx)
             self.last_dx = res.dx

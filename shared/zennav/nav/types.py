@@ -235,6 +235,11 @@ class NavConfig:
         formal RTK sigmas leave out (antenna phase centre, multipath, IMU/GNSS time-tag jitter).
     gate_reset_s: when position fixes keep arriving but are all rejected for this long, the INS (not the GNSS)
         is taken to be wrong: position/velocity covariance is reset from the innovation and the fix is fused.
+    gate_reset_max_rate_mps: with the consistency monitor, that reset only while the horizontal innovation changes by
+        at most this [m/s] from one rejected fix to the next (an INS that is off drifts slowly; fixes dragged away
+        by a spoofer do not) ...
+    gate_reset_unsteady_s: ... or once they have been rejected this long, whatever the innovation does (a drag that
+        long cannot be told from a diverging INS by innovations alone).
     reacquire_fixes: after a loss of GNSS (no fix for outage_timeout_s), this many consecutive rejected fixes
         trigger the same reset (the INS drifted beyond its own uncertainty during the outage).
 
@@ -269,6 +274,8 @@ class NavConfig:
     pos_std_floor_m: float = 0.05
     vel_std_floor_mps: float = 0.1
     gate_reset_s: float = 10.0
+    gate_reset_max_rate_mps: float = 3.0
+    gate_reset_unsteady_s: float = 30.0
     reacquire_fixes: int = 3
     use_gnss_velocity: bool = True
     align_min_speed_mps: float = 3.0
@@ -293,6 +300,12 @@ class NavConfig:
     nhc_std_mps: float = 0.1  # 1-sigma of the constrained lateral and vertical body velocity [m/s]
     nhc_every_s: float = 0.1  # period of the constraint's updates [s of data time]
     scale_factors: bool = True  # estimate gyro/accel scale factors (21 states) when the IMU description has them
+    consistency: bool = True  # NIS monitor and adaptive fading factor of the GNSS sources (nav.consistency)
+    consistency_window: int = 10  # updates in the NIS window
+    consistency_test_probability: float = 0.999  # chi-square quantile of the window's NIS test (overconfident above)
+    consistency_max_pos_m: float = 1.0  # largest position innovation [m] (and step) an inflating window may hold
+    consistency_max_vel_mps: float = 0.5  # the same for the velocity innovation [m/s]
+    consistency_max_factor: float = 100.0  # largest covariance factor of one update
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 

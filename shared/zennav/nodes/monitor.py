@@ -121,13 +121,14 @@ class MonitorState:
             nav["solution_t_ns"] = msg["t_ns"]
         elif schema == "aid_report":
             name = f"{prefix}/{msg['source']}" if prefix else msg["source"]
-            a = self.aid.setdefault(name, {"count": 0, "fused": 0, "rejected": Counter(),
+            a = self.aid.setdefault(name, {"count": 0, "fused": 0, "rejected": Counter(), "faults": Counter(),
                                            "ratios": deque(maxlen=200)})
             a["count"] += 1
             if msg["fused"]:
                 a["fused"] += 1
             else:
                 a["rejected"][msg["reason"] or "unknown"] += 1
+            a["faults"].update(msg.get("faults") or ())  # e.g. inflated (consistency monitor), jump, gate
             if msg["test_ratio"] is not None:
                 a["ratios"].append(msg["test_ratio"])
             a["last_test_ratio"] = msg["test_ratio"]
@@ -172,6 +173,7 @@ class MonitorState:
                                "counters": st.get("counters", {}),
                                "status_age_s": _r((time.time_ns() - st["wall_ns"]) / 1e9) if st else None}
             aid = {src: {"count": a["count"], "fused": a["fused"], "rejected": dict(a["rejected"]),
+                         "faults": dict(a["faults"]),
                          "last_test_ratio": _r(a.get("last_test_ratio")),
                          "p50_test_ratio": _r(_pct(list(a["ratios"]), 50)),
                          "max_test_ratio": _r(max(a["ratios"]) if a["ratios"] else None)}
@@ -223,7 +225,8 @@ def format_table(snap: dict) -> str:
                      f"earth+transport rate {rate}")
     for src, a in snap["aid"].items():
         lines.append(f"  aid {src:<10} n {a['count']:<7} fused {a['fused']:<7} test ratio last {a['last_test_ratio']} "
-                     f"p50 {a['p50_test_ratio']} max {a['max_test_ratio']}  rejected {a['rejected']}")
+                     f"p50 {a['p50_test_ratio']} max {a['max_test_ratio']}  rejected {a['rejected']}  "
+                     f"faults {a['faults']}")
     if snap["models"]:
         lines.append("  models " + ", ".join(f"{n} v{m['version']}" for n, m in snap["models"].items()))
     else:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..adaptive_r import AdaptiveR
+from ..consistency import ConsistencyMonitor
 
 
 @dataclass
@@ -59,13 +60,15 @@ class Measurement:
 class AidSource:
     """Base of the aiding sources. name: the source name in reports, counters and the key nav/aid/<name>;
     inputs: the input kinds the engine routes to ``on_input``; adaptive: the adaptive-R estimator or None;
-    R_used: R of the last update [unit^2]; last_fused_t_ns: time of the last fused measurement (-1: never)."""
+    consistency: the consistency monitor (zennav.nav.consistency) or None; R_used: R of the last update [unit^2];
+    last_fused_t_ns: time of the last fused measurement (-1: never)."""
 
     inputs: tuple[str, ...] = ()
 
-    def __init__(self, name: str, adaptive: AdaptiveR | None = None):
+    def __init__(self, name: str, adaptive: AdaptiveR | None = None, consistency: ConsistencyMonitor | None = None):
         self.name = name
         self.adaptive = adaptive
+        self.consistency = consistency
         self.R_used: np.ndarray | None = None
         self.last_fused_t_ns = -1
 
@@ -103,10 +106,13 @@ class AidSource:
         """Everything of this source that determines the engine's future output (plain, msgpack-safe)."""
         return {"R_used": None if self.R_used is None else self.R_used.tolist(),
                 "last_fused_t_ns": int(self.last_fused_t_ns),
-                "adaptive": None if self.adaptive is None else self.adaptive.get_state()}
+                "adaptive": None if self.adaptive is None else self.adaptive.get_state(),
+                "consistency": None if self.consistency is None else self.consistency.get_state()}
 
     def set_state(self, state: dict) -> None:
         self.R_used = None if state["R_used"] is None else np.array(state["R_used"], dtype=float)
         self.last_fused_t_ns = int(state["last_fused_t_ns"])
         if self.adaptive is not None:
             self.adaptive.set_state(state["adaptive"])
+        if self.consistency is not None:
+            self.consistency.set_state(state["consistency"])

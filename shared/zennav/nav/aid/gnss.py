@@ -12,7 +12,15 @@ Faults, each rejection counted under its reason and reported:
 - gate (gnss_pos_gate, gnss_vel_gate): the chi-square gate of the update;
 - gate trapped: position fixes keep arriving but are all rejected for gate_reset_s, or reacquire_fixes of them
   after a loss of GNSS: the INS (not the GNSS) is taken to be wrong, position and velocity covariance are reset
-  from the innovation and the fix is fused ungated.
+  from the innovation and the fix is fused ungated. With the consistency monitor, which keeps the INS's covariance
+  honest, a run of rejected fixes blames the INS after gate_reset_s only while their horizontal innovation is
+  steady (it changes by at most gate_reset_max_rate_mps from one rejected fix to the next: an INS that is off, not
+  fixes dragged away from it), and after gate_reset_unsteady_s whatever it does (by innovations alone a drag that
+  long cannot be told from a diverging INS); a run that starts within gate_reset_unsteady_s of an outage recovery
+  or a reset, when the INS itself is suspect, after gate_reset_s whatever it does.
+- overconfidence (with config.consistency): each source's consistency monitor (zennav.nav.consistency) scales the
+  covariance before an update when its NIS window says the filter is overconfident on small, steady innovations,
+  so good fixes pass the gate instead of trapping it; counted {source}_inflated, fault "inflated".
 """
 from __future__ import annotations
 
@@ -24,6 +32,7 @@ import numpy as np
 
 from ..adaptive_r import AdaptiveR
 from ..aiding import antenna_velocity, position_model, velocity_model
+from ..consistency import ConsistencyMonitor
 from ..eskf import POS, VEL
 from ..types import NS, GnssFix, GnssState, NavConfig
 from .base import AidSource, Measurement
@@ -55,6 +64,14 @@ def adaptive_r(config: NavConfig, dim: int = 3) -> AdaptiveR | None:
                      config.adaptive_floor, config.adaptive_ceiling)
 
 
+def consistency_monitor(config: NavConfig, max_innovation: float, dim: int = 3) -> ConsistencyMonitor | None:
+    """The configured consistency monitor of a GNSS source (max_innovation in its unit), None when it is off."""
+    if not config.consistency:
+        return None
+    return ConsistencyMonitor(dim, config.consistency_window, config.consistency_test_probability, max_innovation,
+                              config.consistency_max_factor)
+
+
 class GnssPosition(AidSource):
     """GNSS antenna position [rad, rad, m] with its reported NED 1-sigma floored at pos_std_floor_m.
 
@@ -64,7 +81,7 @@ class GnssPosition(AidSource):
     inputs = ("gnss",)
 
     def __init__(self, config: NavConfig, t0_ns: int):
-        super().__init__("gnss_pos", adaptive_r(config))
+        super().__init__("gnss_pos", adaptive_r(config), consistency_monitor(config, config.consistency_max_pos_m))
         self.config = config
         self.gnss_state = GnssState.VALID
         self.valid_t_ns = int(t0_ns)
@@ -73,6 +90,8 @@ class GnssPosition(AidSource):
         self.streak_start_t_ns: int | None = None  # first of the current run of rejected position fixes
         self.streak_fixes = 0
         self.streak_after_loss = False
+        self.streak_prev: tuple[int, float, float] | None = None  # (t_ns, north, east [m]) of its last innovation
+        self.suspect_until_t_ns = int(t0_ns)  # the INS is suspect until then (after a recovery or a reset)
 
     # ------------------------------------------------------------------ input checks
     def admit(self, nav, fix: GnssFix) -> bool:
@@ -122,7 +141,7 @@ class GnssPosition(AidSource):
             self._coarse_fix(nav, ctx, fix_llh, z)
             return False
         m = Measurement(fix.t_ns, fix_llh, z, H, R)
-        if self._gate_trapped(fix.t_ns):
+        if self._gate_trapped(fix.t_ns, z):
             self._reset_position_velocity(nav, z, R, fix.t_ns)
             m.gated, m.faults = False, ("gate_trapped",)
             fused = nav.update(self, m)
@@ -132,9 +151,10 @@ class GnssPosition(AidSource):
             if 0 < (fix.t_ns - self.valid_t_ns) / NS < 5.0:
                 self.interval_s = (fix.t_ns - self.valid_t_ns) / NS
             self.valid_t_ns = fix.t_ns
-            self.streak_start_t_ns, self.streak_fixes = None, 0
+            self.streak_start_t_ns, self.streak_fixes, self.streak_prev = None, 0, None
             if self.gnss_state != GnssState.VALID:
                 nav.hold_learning(fix.t_ns)
+                self._suspect_ins(fix.t_ns)
                 log.warning("GNSS recovered at t=%.3f s after outage", fix.t_ns / NS)
                 nav.counters["outage_recovered"] += 1
             self.gnss_state = GnssState.VALID
@@ -142,6 +162,7 @@ class GnssPosition(AidSource):
             if self.streak_start_t_ns is None:
                 self.streak_start_t_ns = fix.t_ns
             self.streak_fixes += 1
+            self.streak_prev = (fix.t_ns, float(z[0]), float(z[1]))
         ctx.position_fused = fused
         return fused
 
@@ -166,14 +187,23 @@ class GnssPosition(AidSource):
                     m.observation.tolist(), z.tolist(), np.diag(S).tolist(), ratio, ("jump",))
         return True
 
-    def _gate_trapped(self, t_ns: int) -> bool:
-        """True when the current run of rejected position fixes says the INS has left its own uncertainty."""
+    def _gate_trapped(self, t_ns: int, z: np.ndarray) -> bool:
+        """True when the current run of rejected position fixes says the INS has left its own uncertainty (z: this
+        fix's innovation [m, NED])."""
         if self.streak_start_t_ns is None:
             return False
         cfg = self.config
         if self.streak_after_loss and self.streak_fixes >= cfg.reacquire_fixes:
             return True
-        return (t_ns - self.streak_start_t_ns) / NS >= cfg.gate_reset_s
+        streak_s = (t_ns - self.streak_start_t_ns) / NS
+        if streak_s < cfg.gate_reset_s:
+            return False
+        if self.consistency is None or self.streak_prev is None or streak_s >= cfg.gate_reset_unsteady_s \
+                or self.streak_start_t_ns < self.suspect_until_t_ns:
+            return True
+        t_prev, north, east = self.streak_prev
+        rate = math.hypot(z[0] - north, z[1] - east) / max((t_ns - t_prev) / NS, 1e-9)
+        return rate <= cfg.gate_reset_max_rate_mps
 
     def _reset_position_velocity(self, nav, z: np.ndarray, R: np.ndarray, t_ns: int) -> None:
         """Decorrelate position and velocity and widen their variances to cover the innovation z [m] and the
@@ -188,8 +218,14 @@ class GnssPosition(AidSource):
         P[VEL, VEL] = np.diag(var_vel)
         nav.counters["gate_reset"] += 1
         nav.hold_learning(t_ns)
+        self._suspect_ins(t_ns)
         log.warning("t=%.3f s: %d GNSS fixes rejected in a row, INS taken as wrong: covariance reset, fix fused",
                     t_ns / NS, self.streak_fixes)
+
+    def _suspect_ins(self, t_ns: int) -> None:
+        """After an outage or a covariance reset the INS is suspect for gate_reset_unsteady_s: a run of rejected fixes
+        starting then resets after gate_reset_s whatever its innovation does."""
+        self.suspect_until_t_ns = t_ns + int(self.config.gate_reset_unsteady_s * NS)
 
     def _coarse_fix(self, nav, ctx: FixContext, fix_llh: np.ndarray, z: np.ndarray) -> None:
         """Coarse alignment (z: INS antenna minus fix [m, NED]): reject a jump from the dead-reckoned position,
@@ -218,7 +254,9 @@ class GnssPosition(AidSource):
         return {**super().get_state(), "gnss_state": str(self.gnss_state), "valid_t_ns": int(self.valid_t_ns),
                 "interval_s": self.interval_s, "last_fix_t_ns": int(self.last_fix_t_ns),
                 "streak_start_t_ns": self.streak_start_t_ns, "streak_fixes": int(self.streak_fixes),
-                "streak_after_loss": bool(self.streak_after_loss)}
+                "streak_after_loss": bool(self.streak_after_loss),
+                "streak_prev": None if self.streak_prev is None else list(self.streak_prev),
+                "suspect_until_t_ns": int(self.suspect_until_t_ns)}
 
     def set_state(self, state: dict) -> None:
         super().set_state(state)
@@ -227,6 +265,9 @@ class GnssPosition(AidSource):
         self.last_fix_t_ns = int(state["last_fix_t_ns"])
         self.streak_start_t_ns = state["streak_start_t_ns"]
         self.streak_fixes, self.streak_after_loss = int(state["streak_fixes"]), bool(state["streak_after_loss"])
+        prev = state["streak_prev"]
+        self.streak_prev = None if prev is None else (int(prev[0]), float(prev[1]), float(prev[2]))
+        self.suspect_until_t_ns = int(state["suspect_until_t_ns"])
 
 
 class GnssVelocity(AidSource):
@@ -235,7 +276,7 @@ class GnssVelocity(AidSource):
     inputs = ("gnss",)
 
     def __init__(self, config: NavConfig, t0_ns: int):
-        super().__init__("gnss_vel", adaptive_r(config))
+        super().__init__("gnss_vel", adaptive_r(config), consistency_monitor(config, config.consistency_max_vel_mps))
         self.config = config
 
     def on_input(self, nav, ctx: FixContext) -> bool:
