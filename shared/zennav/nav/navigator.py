@@ -282,7 +282,7 @@ class Navigator:
         if res.fused:
             self.feedback(res.dx)
             if self.recorder is not None:
-                self.recorder.on_update(self, res.dx, P_before)
+                self.recorder.on_update(self.t_ns, res.dx, P_before, self.kf.P, self._additive_values())
             self.last_dx = res.dx
             self._dx_since_fix += res.dx
             self.counters[f"{name}_fused"] += 1
@@ -315,7 +315,7 @@ class Navigator:
         P_before = self.kf.P
         self.kf.propagate(Phi, Qd)
         if self.recorder is not None:
-            self.recorder.on_propagate(self, dt, Phi, P_before)
+            self.recorder.on_propagate(self.t_ns, dt, Phi, P_before, self.kf.P, self._additive_values())
         self._cov_dt = 0.0
         self._cov_dvel = [0.0, 0.0, 0.0]
         self._update_stds()
@@ -387,6 +387,10 @@ class Navigator:
         self.t_ns = t_ns
         self._omega_dt = (dth, dt)
         self.alignment.add(dth, dv, dt)
+
+    def _additive_values(self) -> np.ndarray:
+        """Nominal values of the error states after the navigation states (gyro and accel biases), in state order."""
+        return np.array(self.gyro_bias + self.accel_bias)
 
     def _update_stds(self) -> None:
         """Refresh the 1-sigma of position [m], velocity [m/s] and attitude error [rad] from P."""
