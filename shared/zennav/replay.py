@@ -202,4 +202,5 @@ def smoothed_result(res: ReplayResult, rec: Recorder) -> tuple[Smoothed, ReplayR
     std_pos = np.where(covered[:, None], std[:, 0:3], res.std_pos_ned)
     wall = time.perf_counter() - wall0
     status = {"smoother": {**sm.stats, "rows_smoothed": int(covered.sum()), "wall_s": wall}}
-    return sm, ReplayResult(res.dataset, res.t_ns, llh, v_n, q_nb, std_pos, res.outage, res.windows, [], status, wall)
+    return sm, ReplayResult(res.dataset, res.t_ns, llh, v_n, q_nb, std_pos, res.outage, res.windows, [], status,
+                            res.wall_s + wall)
