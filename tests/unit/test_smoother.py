@@ -34,11 +34,12 @@ def linear_system(seed: int):
     return rng, Phi, Q, [(H1, 0.3 * np.eye(3)), (H2, 0.2 * np.eye(2))]
 
 
-def run_closed_loop(seed: int, K: int = 40, reset_at: int | None = None):
+def run_closed_loop(seed: int, K: int = 40, reset_at: int | None = None, reset_between: bool = False):
     """Simulate K epochs of the linear system and run a closed-loop Kalman filter over them, recording for the
     smoother: the nominal is propagated noise-free, every update's correction dx (of z = predicted minus observed)
     is fed back (nominal -= dx). Epoch 0 starts from the prior; epochs 5, 6, 7 have no measurement; epoch 9 has a
-    row taken between its two updates; reset_at: the covariance is replaced (inflated) before that epoch's update.
+    row taken between its two updates; reset_at: the covariance is replaced (widened, its correlations of the first
+    three states removed) before that epoch's updates, or (reset_between) before its propagation.
     Returns the recorder, the per-epoch nominals after the updates, the row's nominal and the measurement log."""
     rng, Phi, Q, models = linear_system(seed)
     P0 = np.eye(N)
@@ -50,14 +51,16 @@ def run_closed_loop(seed: int, K: int = 40, reset_at: int | None = None):
     row = None
     for k in range(K):
         t = k * DT_NS
+        if k == reset_at and reset_between:
+            P = widened(P)
         if k > 0:
             x = Phi @ x + rng.multivariate_normal(np.zeros(N), Q)
             nominal = Phi @ nominal
             P_new = Phi @ P @ Phi.T + Q
             rec.on_propagate(t, DT_NS / 1e9, Phi, P, P_new, nominal[9:])
             P = P_new
-        if k == reset_at:
-            P = P + np.diag(np.full(N, 4.0))
+        if k == reset_at and not reset_between:
+            P = widened(P)
         if k in (5, 6, 7):
             nominals.append(nominal.copy())
             continue
@@ -79,10 +82,20 @@ def run_closed_loop(seed: int, K: int = 40, reset_at: int | None = None):
     return rec, np.array(nominals), row, log, (Phi, Q, P0)
 
 
-def batch_smoother(K: int, log, model, first: int = 0, prior=None):
+def widened(P: np.ndarray) -> np.ndarray:
+    """A covariance reset like the engine's GNSS gate reset: states 0-2 decorrelated, their variances widened."""
+    out = P.copy()
+    out[0:3, :] = 0.0
+    out[:, 0:3] = 0.0
+    out[0:3, 0:3] = np.diag(np.diag(P)[0:3] + 9.0)
+    return out
+
+
+def batch_smoother(K: int, log, model, first: int = 0, prior=None, pseudo=None):
     """The exact smoother by brute force: the Gaussian posterior of all states x_first..x_K-1 given the prior of
-    x_first (mean, covariance), the dynamics and every measurement, from its information matrix. Returns the
-    means (K', N) and 1-sigma (K', N)."""
+    x_first (mean, covariance), the dynamics and every measurement, from its information matrix; pseudo: {epoch:
+    (information matrix, information vector)} replacing that epoch's measurements. Returns the means (K', N) and
+    1-sigma (K', N)."""
     Phi, Q, P0 = model
     mean0, cov0 = prior if prior is not None else (np.zeros(N), P0)
     M = K - first
@@ -98,8 +111,11 @@ def batch_smoother(K: int, log, model, first: int = 0, prior=None):
         J[c, c] += Qi
         J[a, c] -= Phi.T @ Qi
         J[c, a] -= Qi @ Phi
+    for k, (L, eta) in (pseudo or {}).items():
+        J[blk[k - first], blk[k - first]] += L
+        b[blk[k - first]] += eta
     for k, H, R, y in log:
-        if first <= k < K:
+        if first <= k < K and k not in (pseudo or {}):
             i = blk[k - first]
             J[i, i] += H.T @ np.linalg.solve(R, H)
             b[i] += H.T @ np.linalg.solve(R, y)
@@ -127,22 +143,44 @@ def test_closed_loop_rts_equals_the_batch_smoother():
     np.testing.assert_allclose(err[0], 0.5 * (sm.s[9] + sm.s[10] + sm.u[10]), rtol=0, atol=1e-12)
 
 
-def test_a_covariance_reset_splits_the_run_into_independent_segments():
+def test_a_reset_at_an_epoch_is_bridged_by_the_epochs_own_result():
+    """The gate-reset case: the smoothed run equals the exact smoother with the reset epoch's measurements replaced
+    by the pseudo-measurement that takes its prior N(x-, P-) to the filter's posterior N(x+, P+)."""
     K, j = 30, 17
     rec, nominals, row, log, model = run_closed_loop(seed=2, K=K, reset_at=j)
     sm = smooth(rec)
-    assert sm.stats["segments"] == 2 and len(sm.t_ns) == K + 1 and sm.t_ns[j] == sm.t_ns[j + 1]
-    # before the reset: the exact smoother of the epochs up to j with the measurements before j
-    mean, std = batch_smoother(j + 1, [m for m in log if m[0] < j], model)
-    s_before = sm.s[: j + 1]
-    before = np.vstack([nominals[:j], (model[0] @ nominals[j - 1])[None]])  # epoch j: the propagated prior
-    np.testing.assert_allclose(before - s_before, mean, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(sm.std[: j + 1], std, rtol=1e-9)
-    # from the reset on: the exact smoother of the later epochs from the reset covariance
-    prior = (model[0] @ nominals[j - 1], rec.P_prior[j] + np.diag(np.full(N, 4.0)))  # the reset covariance
-    mean, std = batch_smoother(K, log, model, first=j, prior=prior)
-    np.testing.assert_allclose(nominals[j:] - sm.s[j + 1:], mean, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(sm.std[j + 1:], std, rtol=1e-9)
+    assert sm.stats["segments"] == 1 and sm.stats["bridged_resets"] == 1 and len(sm.t_ns) == K
+    P_prior, P_post = rec.P_prior[j], rec.P_post[j]
+    x_prior, x_post = model[0] @ nominals[j - 1], nominals[j]
+    L = np.linalg.inv(P_post) - np.linalg.inv(P_prior)
+    eta = np.linalg.solve(P_post, x_post) - np.linalg.solve(P_prior, x_prior)
+    mean, std = batch_smoother(K, log, model, pseudo={j: (L, eta)})
+    np.testing.assert_allclose(nominals - sm.s, mean, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sm.std, std, rtol=1e-8)
+    # the reset is not a no-op: smoothing with the reset covariance as the prior gives other states
+    mean_cut, _ = batch_smoother(K, [m for m in log if m[0] != j], model, pseudo={})
+    assert np.max(np.abs(mean_cut - mean)) > 1e-3
+
+
+def test_a_reset_between_epochs_starts_an_independent_segment():
+    K, j = 30, 17
+    rec, nominals, row, log, model = run_closed_loop(seed=3, K=K, reset_at=j, reset_between=True)
+    sm = smooth(rec)
+    assert sm.stats["segments"] == 2 and len(sm.t_ns) == K + 1 and sm.t_ns[j - 1] == sm.t_ns[j]
+    # before the reset: the exact smoother of the epochs before j with their measurements
+    mean, std = batch_smoother(j, [m for m in log if m[0] < j], model)
+    np.testing.assert_allclose(nominals[:j] - sm.s[:j], mean, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sm.std[:j], std, rtol=1e-9)
+    # from the reset on: the exact smoother from the reset covariance at epoch j-1 (the new segment's start)
+    prior = (nominals[j - 1], rec.P_post[j])
+    mean, std = batch_smoother(K, log, model, first=j - 1, prior=prior,
+                               pseudo={j - 1: (np.zeros((N, N)), np.zeros(N))})
+    np.testing.assert_allclose(nominals[j - 1:] - sm.s[j:], mean, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sm.std[j:], std, rtol=1e-9)
+    # a row after the reset lies on the new segment's nominal trajectory
+    err, std_row, covered = row_errors(sm, np.array([int((j - 0.5) * DT_NS)]))
+    assert covered[0]
+    np.testing.assert_allclose(err[0], 0.5 * (sm.s[j] + sm.s[j + 1] + sm.u[j + 1]), rtol=0, atol=1e-12)
 
 
 @pytest.fixture(scope="module")

@@ -21,6 +21,7 @@ import logging
 import math
 from collections import Counter
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -45,6 +46,9 @@ from .learning import LearningTap, LearnQuery, LearnSample
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_quat_xyz, rotvec_to_quat
 from .strapdown import NavState, mechanize
 from .types import NS, GnssFix, InitialState, NavConfig
+
+if TYPE_CHECKING:
+    from .smoother import Recorder
 
 __all__ = ["AidReport", "NavSolution", "Navigator", "correct_nav"]
 
@@ -125,7 +129,7 @@ class Navigator:
         self.last_dx = np.zeros(N_STATES)  # correction of the last fused update
         self._learn_start_t_ns = self.t_ns + int(config.learn_after_s * NS)
         # zennav.nav.smoother.Recorder (or None): told of every covariance propagation and fused update
-        self.recorder = None
+        self.recorder: Recorder | None = None
         self.sources: dict[str, AidSource] = {}
         self._inputs: dict[str, list[AidSource]] = {"gnss": []}
         self._step_sources: list[AidSource] = []

@@ -20,13 +20,24 @@ error mean is always zero and the corrections themselves carry the information. 
 Stored during the forward pass (Recorder), per epoch: Phi_k and P_k+1- (n x n each), P_k+ (a third n x n matrix
 only where an update happened, else the same array as the prior), u_k, the additive states' values and the time:
 memory grows linearly with the run's length and with 1/cov_interval_s, as does the backward pass (one n x n solve
-and four n x n products per epoch). A covariance the engine replaced outside its propagation and update (a filter
-start, a gate reset) starts a new segment: nothing is smoothed across it.
+and four n x n products per epoch).
+
+A covariance the engine replaces outside its propagation and update is handled by where it happens. At the
+current epoch (the GNSS gate reset, between the propagation and the fix's update: the INS taken as wrong,
+position and velocity widened and decorrelated so that the fix is taken) the epoch stays linked by the propagated
+prior P_k- and its posterior is the filter's (after the reset and the updates): the backward pass takes the
+epoch's result N(u_k, P_k+) as given, which is the exact smoother with the epoch's measurements replaced by the
+pseudo-measurement of information (P_k+)^-1 - (P_k-)^-1 (tested), and the fix's correction flows back through the
+error dynamics into the outage before it. (Taking the reset covariance as the prior instead decorrelates the outage
+from the fix and leaves it near the forward error: rtklibexplorer, 30 s outages every 90 s, RMS of the outage
+peaks 91 m forward, 84 m that way, 2.3 m bridged.) Anywhere else (the filter's start after coarse alignment) a
+new segment starts and nothing is smoothed across.
 
 Between epochs the output rows lie on one mechanized nominal trajectory from x_k+ to x_k+1-, whose smoothed errors
 at the ends are s_k and s_k+1 + u_k+1: the row's error is interpolated linearly in time between them (continuous
 at the epochs, using both ends; over cov_interval_s the error moves by its smooth dynamics and little noise), its
-1-sigma likewise. Rows before the first epoch or in the gap before a new segment keep the forward solution.
+1-sigma likewise. Rows before the first epoch (coarse alignment) or after the last one of a segment keep the
+forward solution.
 """
 from __future__ import annotations
 
@@ -55,6 +66,7 @@ class Recorder:
         self.values: list[np.ndarray] = []
         self.u_at_row: dict[int, np.ndarray] = {}  # an epoch's sum when its row was output, if updates followed
         self.segments = 0
+        self.bridged = 0
         self._row_t_ns = -1
 
     def on_propagate(self, t_ns: int, dt: float, Phi: np.ndarray, P_before: np.ndarray, P_after: np.ndarray,
@@ -67,9 +79,14 @@ class Recorder:
 
     def on_update(self, t_ns: int, dx: np.ndarray, P_before: np.ndarray, P_after: np.ndarray,
                   values: np.ndarray) -> None:
-        """A fused update at t_ns (the time of the last propagation) whose correction dx was fed back."""
+        """A fused update at t_ns (the time of the last propagation) whose correction dx was fed back. A covariance
+        replaced since the last event is bridged at the epoch (counted in ``bridged``), or starts a new segment
+        when its epoch is not the current one (module docstring)."""
         if not self.P_post or not np.array_equal(P_before, self.P_post[-1]):
-            self._start_segment(t_ns, P_before, values)
+            if self.P_post and self.t_ns[-1] == t_ns:
+                self.bridged += 1
+            else:
+                self._start_segment(t_ns, P_before, values)
         k = len(self.t_ns) - 1
         if self._row_t_ns == self.t_ns[k] and k not in self.u_at_row:
             self.u_at_row[k] = self.u[k].copy()
@@ -108,8 +125,9 @@ class Recorder:
 class Smoothed:
     """The backward pass's result per epoch: t_ns (K,), s (K, n) smoothed error of the forward posterior nominal
     (zennav.nav.eskf order and units), std (K, n) smoothed 1-sigma, values (K, n - 9) smoothed additive states
-    (biases [rad/s, m/s^2, body], augmented), linked (K,) whether epoch k follows k-1 by a propagation;
-    u_at_row as in the Recorder; stats: epochs, segments, singular priors, stored bytes, wall time [s]."""
+    (biases [rad/s, m/s^2, body], augmented), u (K, n) the corrections fed back at each epoch, linked (K,)
+    whether epoch k follows k-1 by a propagation; u_at_row as in the Recorder; stats: epochs, segments, bridged
+    covariance resets, singular priors, stored bytes, wall time of the backward pass [s]."""
 
     t_ns: np.ndarray
     s: np.ndarray
@@ -138,6 +156,7 @@ def smooth(rec: Recorder) -> Smoothed:
             s_k, Ps = np.zeros(n), P_post
         else:
             P_prior = rec.P_prior[k + 1]
+            assert P_prior is not None  # linked
             try:
                 G = np.linalg.solve(P_prior, rec.Phi[k + 1] @ P_post)  # C_k' = P-^-1 Phi P+
             except np.linalg.LinAlgError:
@@ -152,8 +171,8 @@ def smooth(rec: Recorder) -> Smoothed:
         var[k] = np.diag(Ps)
         s_next, Ps_next = s_k, Ps
     values = np.array(rec.values).reshape(K, n - N_NAV) - s[:, N_NAV:]
-    stats = {"epochs": K, "segments": rec.segments, "singular_priors": singular, "stored_bytes": rec.nbytes(),
-             "backward_wall_s": time.perf_counter() - wall0}
+    stats = {"epochs": K, "segments": rec.segments, "bridged_resets": rec.bridged, "singular_priors": singular,
+             "stored_bytes": rec.nbytes(), "backward_wall_s": time.perf_counter() - wall0}
     return Smoothed(np.array(rec.t_ns, dtype=np.int64), s, np.sqrt(np.maximum(var, 0.0)), values,
                     np.array(rec.u).reshape(K, n), linked, dict(rec.u_at_row), stats)
 
