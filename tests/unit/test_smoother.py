@@ -9,9 +9,14 @@
 """
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
+from zennav.cli import main
+from zennav.datasets import kfgins
 from zennav.metrics import evaluate
 from zennav.nav import earth
 from zennav.nav.rotation import euler_to_dcm, quat_to_dcm
@@ -181,6 +186,33 @@ def test_a_reset_between_epochs_starts_an_independent_segment():
     err, std_row, covered = row_errors(sm, np.array([int((j - 0.5) * DT_NS)]))
     assert covered[0]
     np.testing.assert_allclose(err[0], 0.5 * (sm.s[j] + sm.s[j + 1] + sm.u[j + 1]), rtol=0, atol=1e-12)
+
+
+def test_replay_smooth_writes_both_solutions_and_leaves_the_forward_one_unchanged(tmp_path):
+    ds = make_dataset("car", duration_s=120.0, imu_rate_hz=100.0, seed=3)
+    yaml_path = kfgins.write_dataset(ds, tmp_path / "data")
+    runs = {}
+    for name, extra in (("plain", []), ("smooth", ["--smooth"])):
+        out = tmp_path / name
+        res = CliRunner().invoke(main, ["replay", "--kf-gins-config", str(yaml_path), "--outage", "40:20",
+                                        "--out", str(out), *extra])
+        assert res.exit_code == 0, res.output
+        runs[name] = out
+    plain, smooth = runs["plain"], runs["smooth"]
+    for f in ("nav.txt", "nav.csv"):  # the recorder does not change the forward pass
+        assert (plain / f).read_bytes() == (smooth / f).read_bytes()
+    assert not (plain / "smoothed").exists() and "smoothed" not in json.loads((plain / "metrics.json").read_text())
+    fwd_csv, smo_csv = (np.loadtxt(d / "nav.csv", delimiter=",", skiprows=1) for d in (smooth, smooth / "smoothed"))
+    assert (smooth / "smoothed" / "nav.csv").read_text().splitlines()[0] == (smooth / "nav.csv").read_text(
+    ).splitlines()[0]
+    assert smo_csv.shape == fwd_csv.shape and np.array_equal(smo_csv[:, 0], fwd_csv[:, 0])
+    assert np.loadtxt(smooth / "smoothed" / "nav.txt").shape == np.loadtxt(smooth / "nav.txt").shape
+    m = json.loads((smooth / "metrics.json").read_text())
+    fwd, smo = m, m["smoothed"]
+    assert {"horizontal_rms_m", "outages", "outage_max_horizontal_max_m", "smoother"} <= smo.keys()
+    assert smo["smoother"]["segments"] == 1 and smo["smoother"]["rows_smoothed"] == len(smo_csv)
+    assert smo["outage_max_horizontal_max_m"] < 0.5 * fwd["outage_max_horizontal_max_m"]
+    assert np.all(smo_csv[:, 10:13] <= fwd_csv[:, 10:13] + 1e-4)  # smoothed 1-sigma never above the forward one
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,145 @@
+"""Forward-backward smoothing of a replay (issue 16): accuracy, memory and time, from `zennav replay --smooth`'s
+own code path (zennav.replay.run_replay(smoothing=True), zennav.metrics.evaluate) with the ins's filter parameters
+(deploy/ins.yaml), as the command runs them.
+
+accuracy  simulated car and multirotor (600 s, 200 Hz, exact truth; --seeds): GNSS withheld 30 s every 120 s and
+          60 s every 180 s; RMS and max over all windows of the per-window maximum horizontal error, forward vs
+          smoothed; and the horizontal RMS with full GNSS.
+rtk       rtklibexplorer (500 s drive, scored against the withheld RTK fixes): 30 s every 90 s and 60 s every 120 s,
+          without and with the non-holonomic constraint.
+long      a 30 min simulated car drive at 200 Hz: wall time of the forward pass without and with the recorder and of
+          the smoothing, the recorder's stored bytes and the process's peak memory growth.
+interval  the cost against cov_interval_s (300 s car at 200 Hz): epochs, stored MB, backward time, accuracy.
+
+    .venv/bin/python benchmarks/smoother.py [--only accuracy,rtk,long,interval] [--seeds 0,1,2]
+"""
+from __future__ import annotations
+
+import argparse
+import resource
+import time
+
+import numpy as np
+
+from zennav.datasets.registry import load_dataset
+from zennav.metrics import evaluate
+from zennav.params import load_filter_params, nav_config
+from zennav.replay import run_replay
+from zennav.sim.scenarios import make_dataset
+
+
+def _ins_filter(ds):
+    ds.config = nav_config(ds.config, load_filter_params(None))  # as zennav replay: the ins's filter
+    return ds
+
+
+def _peaks(m: dict) -> list[float]:
+    return [o["max_horizontal_m"] for o in m["outages"]]
+
+
+def _rms(x) -> float:
+    x = np.asarray(x, dtype=float)
+    return float(np.sqrt(np.mean(x * x)))
+
+
+def _pct(fwd: float, smo: float) -> str:
+    return f"{100.0 * (fwd - smo) / fwd:5.0f}%"
+
+
+def accuracy(seeds: list[int]) -> None:
+    print("simulated drives, 600 s at 200 Hz, seeds", seeds)
+    print(f"{'drive':>11}{'GNSS':>16}{'windows':>8}{'fwd RMS m':>11}{'smo RMS m':>11}{'lower':>7}"
+          f"{'fwd max m':>11}{'smo max m':>11}")
+    for kind in ("car", "multirotor"):
+        for label, every in (("30 s every 120", (120.0, 30.0, 90.0)), ("60 s every 180", (180.0, 60.0, 120.0)),
+                             ("full", None)):
+            fwd, smo, h_fwd, h_smo = [], [], [], []
+            for seed in seeds:
+                ds = _ins_filter(load_dataset(f"sim:{kind}", seed=seed))
+                res = run_replay(ds, outage_every=every, smoothing=True)
+                mf, ms = evaluate(ds, res), evaluate(ds, res.smoothed)
+                fwd += _peaks(mf)
+                smo += _peaks(ms)
+                h_fwd.append(mf["horizontal_rms_m"])
+                h_smo.append(ms["horizontal_rms_m"])
+            if every is None:
+                f, s = _rms(h_fwd), _rms(h_smo)
+                print(f"{kind:>11}{'full (hRMS)':>16}{'-':>8}{f:>11.3f}{s:>11.3f}{_pct(f, s):>7}")
+            else:
+                f, s = _rms(fwd), _rms(smo)
+                print(f"{kind:>11}{label:>16}{len(fwd):>8}{f:>11.2f}{s:>11.2f}{_pct(f, s):>7}{max(fwd):>11.2f}"
+                      f"{max(smo):>11.2f}", flush=True)
+
+
+def rtk() -> None:
+    print("rtklibexplorer, scored against the withheld RTK fixes")
+    print(f"{'GNSS withheld':>16}{'NHC':>5}{'windows':>8}{'fwd RMS m':>11}{'smo RMS m':>11}{'lower':>7}"
+          f"{'fwd max m':>11}{'smo max m':>11}{'fwd hRMS':>10}{'smo hRMS':>10}{'bridged':>8}")
+    for label, every in (("30 s every 90", (90.0, 30.0, 60.0)), ("60 s every 120", (120.0, 60.0, 60.0))):
+        for nhc in (False, True):
+            ds = _ins_filter(load_dataset("rtklibexplorer"))
+            ds.config = ds.config.with_(nhc=nhc)
+            res = run_replay(ds, outage_every=every, smoothing=True)
+            mf, ms = evaluate(ds, res), evaluate(ds, res.smoothed)
+            f, s = _rms(_peaks(mf)), _rms(_peaks(ms))
+            print(f"{label:>16}{'on' if nhc else 'off':>5}{len(mf['outages']):>8}{f:>11.2f}{s:>11.2f}{_pct(f, s):>7}"
+                  f"{max(_peaks(mf)):>11.2f}{max(_peaks(ms)):>11.2f}{mf['horizontal_rms_m']:>10.2f}"
+                  f"{ms['horizontal_rms_m']:>10.2f}{res.smoothed.status['smoother']['bridged_resets']:>8}", flush=True)
+
+
+def _maxrss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def long() -> None:
+    t0 = time.perf_counter()
+    ds = _ins_filter(make_dataset("car", duration_s=1800.0, imu_rate_hz=200.0, seed=0))
+    print(f"30 min simulated car at 200 Hz ({len(ds.imu.t_ns)} IMU samples, made in {time.perf_counter() - t0:.0f} s), "
+          "GNSS withheld 60 s every 300 s")
+    every = (300.0, 60.0, 240.0)
+    plain = run_replay(ds, outage_every=every)
+    rss0 = _maxrss_mb()
+    res = run_replay(ds, outage_every=every, smoothing=True)
+    rss1 = _maxrss_mb()
+    st = res.smoothed.status["smoother"]
+    mf, ms = evaluate(ds, res), evaluate(ds, res.smoothed)
+    print(f"forward pass without recorder  {plain.wall_s:7.2f} s")
+    print(f"forward pass with recorder     {res.wall_s:7.2f} s  (+{100 * (res.wall_s / plain.wall_s - 1):.0f}%)")
+    print(f"smoothing (backward + rows)    {st['wall_s']:7.2f} s  (backward {st['backward_wall_s']:.2f} s, "
+          f"{st['epochs']} epochs, {st['rows_smoothed']} rows)")
+    print(f"recorder's stored arrays       {st['stored_bytes'] / 2**20:7.1f} MiB  "
+          f"({st['stored_bytes'] / st['epochs']:.0f} B per epoch; n = {res.smoothing.s.shape[1]})")
+    print(f"process peak memory growth     {rss1 - rss0:7.1f} MiB  (peak {rss1:.0f} MiB, dataset and forward "
+          "results included)")
+    print(f"outage peaks RMS fwd {_rms(_peaks(mf)):.2f} m, smoothed {_rms(_peaks(ms)):.2f} m; horizontal RMS fwd "
+          f"{mf['horizontal_rms_m']:.3f} m, smoothed {ms['horizontal_rms_m']:.3f} m")
+
+
+def interval() -> None:
+    print("cost against cov_interval_s: 300 s simulated car at 200 Hz, GNSS withheld 30 s every 120 s")
+    print(f"{'cov_interval_s':>15}{'epochs':>8}{'stored MiB':>12}{'fwd s':>8}{'smooth s':>10}{'fwd RMS m':>11}"
+          f"{'smo RMS m':>11}")
+    for dt in (0.01, 0.02, 0.05, 0.1, 0.2):
+        ds = _ins_filter(make_dataset("car", duration_s=300.0, imu_rate_hz=200.0, seed=0))
+        ds.config = ds.config.with_(cov_interval_s=dt)
+        res = run_replay(ds, outage_every=(120.0, 30.0, 90.0), smoothing=True)
+        st = res.smoothed.status["smoother"]
+        f, s = _rms(_peaks(evaluate(ds, res))), _rms(_peaks(evaluate(ds, res.smoothed)))
+        print(f"{dt:>15.2f}{st['epochs']:>8}{st['stored_bytes'] / 2**20:>12.1f}{res.wall_s:>8.2f}{st['wall_s']:>10.2f}"
+              f"{f:>11.2f}{s:>11.2f}", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--only", default="accuracy,rtk,long,interval")
+    ap.add_argument("--seeds", default="0,1,2")
+    a = ap.parse_args()
+    parts = a.only.split(",")
+    seeds = [int(s) for s in a.seeds.split(",")]
+    for name in parts:
+        {"accuracy": lambda: accuracy(seeds), "rtk": rtk, "long": long, "interval": interval}[name]()
+        print()
+
+
+if __name__ == "__main__":
+    main()
