@@ -79,6 +79,8 @@ FILTER: dict[str, Param] = {
     "adaptive_test_probability": Param("adaptive_r", ""),
     "adaptive_floor": Param("adaptive_r", ""),
     "adaptive_ceiling": Param("adaptive_r", ""),
+    # the error state
+    "scale_factors": Param("states", "", "bool"),
     # the engine's side of learned compensation
     "learn_after_s": Param("learning", "s"),
     "learn_horizon_s": Param("learning", "s"),

@@ -168,7 +168,9 @@ class Truth:
 @dataclass
 class ImuNoise:
     """IMU error model, SI: angle random walk [rad/sqrt(s)], velocity random walk [m/s/sqrt(s)],
-    bias instability as first-order Gauss-Markov 1-sigma [rad/s, m/s^2] with correlation times [s]."""
+    bias instability as first-order Gauss-Markov 1-sigma [rad/s, m/s^2] with correlation times [s];
+    scale-factor errors (dimensionless, 1e-6 = 1 ppm) as first-order Gauss-Markov 1-sigma with correlation
+    times [s]: 0 says the IMU description has none (15 states; see NavConfig.scale_factors)."""
 
     arw: float = np.deg2rad(0.2) / 60.0
     vrw: float = 0.1 / 60.0
@@ -176,6 +178,14 @@ class ImuNoise:
     accel_bias_std: float = 1e-3 * 9.80665
     gyro_bias_tau: float = 3600.0
     accel_bias_tau: float = 3600.0
+    gyro_scale_std: float = 0.0
+    accel_scale_std: float = 0.0
+    gyro_scale_tau: float = 3600.0
+    accel_scale_tau: float = 3600.0
+
+    def has_scale_factors(self) -> bool:
+        """Whether the description gives the scale factors an uncertainty."""
+        return self.gyro_scale_std > 0.0 or self.accel_scale_std > 0.0
 
 
 @dataclass
@@ -199,6 +209,10 @@ class InitialState:
     std_gyro_bias: np.ndarray | None = None  # None: the ImuNoise bias std
     std_accel_bias: np.ndarray | None = None
     heading_known: bool = True
+    gyro_scale: np.ndarray = field(default_factory=lambda: np.zeros(3))  # initial scale-factor errors [-]
+    accel_scale: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    std_gyro_scale: np.ndarray | None = None  # None: the ImuNoise scale-factor std
+    std_accel_scale: np.ndarray | None = None
 
     def heading_is_known(self) -> bool:
         """True when the yaw can start a small-angle error-state filter (see the class docstring)."""
@@ -278,6 +292,7 @@ class NavConfig:
     nhc: bool = False  # non-holonomic constraint of a land vehicle (zennav.nav.aid.constraints)
     nhc_std_mps: float = 0.1  # 1-sigma of the constrained lateral and vertical body velocity [m/s]
     nhc_every_s: float = 0.1  # period of the constraint's updates [s of data time]
+    scale_factors: bool = True  # estimate gyro/accel scale factors (21 states) when the IMU description has them
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 
