@@ -20,7 +20,7 @@ from zennav.datasets import kfgins
 from zennav.metrics import evaluate
 from zennav.nav import earth
 from zennav.nav.rotation import euler_to_dcm, quat_to_dcm
-from zennav.nav.smoother import Recorder, row_errors, smooth
+from zennav.nav.smoother import Recorder, row_errors, smooth, smooth_rows
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset, true_biases
 
@@ -235,6 +235,8 @@ def test_smoothing_bounds_the_outage_from_both_ends(car_runs):
         assert smo["outage_max_horizontal_max_m"] < 0.3 * fwd["outage_max_horizontal_max_m"]
         assert smo["horizontal_rms_m"] < 0.8 * fwd["horizontal_rms_m"]
         assert res.smoothed.status["smoother"]["segments"] == 1
+    llh, v_n, q_nb, std, covered = smooth_rows(res.smoothing, res.t_ns, res.llh, res.v_n, res.q_nb, chunk=4099)
+    assert np.array_equal(llh, res.smoothed.llh) and np.array_equal(q_nb, res.smoothed.q_nb)  # chunks change nothing
 
 
 GROUPS = {"position": slice(0, 3), "velocity": slice(3, 6), "attitude": slice(6, 9), "gyro bias": slice(9, 12),

@@ -180,7 +180,7 @@ def smooth(rec: Recorder) -> Smoothed:
 def row_errors(sm: Smoothed, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Smoothed error (N, n) and 1-sigma (N, n) of the forward output rows at t_ns (N,) [ns] (rows taken after the
     engine's events at their time), interpolated between epochs (module docstring); covered (N,): rows inside a
-    segment (elsewhere error 0 and 1-sigma NaN: the forward solution stands)."""
+    segment (elsewhere error 0 and 1-sigma NaN: the forward solution stands). t_ns increasing."""
     t_ns = np.asarray(t_ns, dtype=np.int64)
     N, K = len(t_ns), len(sm.t_ns)
     n = sm.s.shape[1]
@@ -202,16 +202,27 @@ def row_errors(sm: Smoothed, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     err = sm.s[k] + w * (s_right[k] - sm.s[k])
     std = sm.std[k] + w * (std_right[k] - sm.std[k])
     for j, u_row in sm.u_at_row.items():  # a row taken at an epoch before some of its updates
-        rows = np.flatnonzero(t_ns == sm.t_ns[j])
-        err[rows] += sm.u[j] - u_row
+        i = int(np.searchsorted(t_ns, sm.t_ns[j]))
+        if i < N and t_ns[i] == sm.t_ns[j]:
+            err[i] += sm.u[j] - u_row
     err[~covered] = 0.0
     std[~covered] = np.nan
     return err, std, covered
 
 
-def smooth_rows(sm: Smoothed, t_ns: np.ndarray, llh: np.ndarray, v_n: np.ndarray, q_nb: np.ndarray):
-    """The forward rows (llh (N, 3) [rad, rad, m], v_n (N, 3) [m/s], q_nb (N, 4)) corrected by their smoothed errors
-    with the engine's feedback formulas. Returns llh, v_n, q_nb, std (N, 9) [m NED, m/s, rad] and covered (N,)."""
-    err, std, covered = row_errors(sm, t_ns)
-    lat, lon, h, v_s, q_s = correct_nav(llh[:, 0], llh[:, 1], llh[:, 2], v_n.T, q_nb.T, err.T)
-    return np.column_stack([lat, lon, h]), v_s.T, q_s.T, std[:, :N_NAV], covered
+def smooth_rows(sm: Smoothed, t_ns: np.ndarray, llh: np.ndarray, v_n: np.ndarray, q_nb: np.ndarray,
+                chunk: int = 65536):
+    """The forward rows (llh (N, 3) [rad, rad, m], v_n (N, 3) [m/s], q_nb (N, 4); t_ns increasing) corrected by
+    their smoothed errors with the engine's feedback formulas, chunk rows at a time (bounded temporaries). Returns
+    llh, v_n, q_nb, std (N, 9) [m NED, m/s, rad] and covered (N,)."""
+    N = len(t_ns)
+    llh_s, v_s, q_s = np.empty_like(llh), np.empty_like(v_n), np.empty_like(q_nb)
+    std, covered = np.empty((N, N_NAV)), np.empty(N, dtype=bool)
+    for a in range(0, N, chunk):
+        b = min(a + chunk, N)
+        err, sd, covered[a:b] = row_errors(sm, t_ns[a:b])
+        lat, lon, h, v, q = correct_nav(llh[a:b, 0], llh[a:b, 1], llh[a:b, 2], v_n[a:b].T, q_nb[a:b].T,
+                                        err[:, :N_NAV].T)
+        llh_s[a:b, 0], llh_s[a:b, 1], llh_s[a:b, 2], v_s[a:b], q_s[a:b] = lat, lon, h, v.T, q.T
+        std[a:b] = sd[:, :N_NAV]
+    return llh_s, v_s, q_s, std, covered
