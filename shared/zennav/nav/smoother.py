@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .navigator import correct_nav
+from .types import NS
 
 N_NAV = 9  # position, velocity and attitude errors come first; the states after them are additive (value -= dx)
 
@@ -68,14 +69,16 @@ class Recorder:
         self.segments = 0
         self.bridged = 0
         self._row_t_ns = -1
+        self._zero: np.ndarray | None = None  # the u of the epochs without an update (one shared, read-only)
 
     def on_propagate(self, t_ns: int, dt: float, Phi: np.ndarray, P_before: np.ndarray, P_after: np.ndarray,
                      values: np.ndarray) -> None:
         """Covariance propagated over dt [s] to t_ns with the transition Phi: P_after = Phi P_before Phi' + Qd."""
         if not self.P_post or not np.array_equal(P_before, self.P_post[-1]):
-            self._start_segment(t_ns - int(round(dt * 1e9)), P_before, values)
-        P = P_after.copy()
-        self._append(t_ns, Phi, P, P, values)
+            self._start_segment(t_ns - int(round(dt * NS)), P_before, values)
+        P = P_after.copy()  # the engine's own array, which a covariance reset changes in place
+        last = self.values[-1]
+        self._append(t_ns, Phi, P, P, last if np.array_equal(values, last) else np.array(values, dtype=float))
 
     def on_update(self, t_ns: int, dx: np.ndarray, P_before: np.ndarray, P_after: np.ndarray,
                   values: np.ndarray) -> None:
@@ -110,15 +113,20 @@ class Recorder:
 
     def _start_segment(self, t_ns: int, P: np.ndarray, values) -> None:
         self.segments += 1
-        self._append(t_ns, None, None, P.copy(), values)
+        self._append(t_ns, None, None, P.copy(), np.array(values, dtype=float))
 
-    def _append(self, t_ns: int, Phi, P_prior, P_post, values) -> None:
+    def _append(self, t_ns: int, Phi, P_prior, P_post, values: np.ndarray) -> None:
+        """A new epoch (values: the previous epoch's array where unchanged, which the engine's propagation leaves
+        them)."""
+        if self._zero is None or len(self._zero) != P_post.shape[0]:
+            self._zero = np.zeros(P_post.shape[0])
+            self._zero.flags.writeable = False
         self.t_ns.append(int(t_ns))
         self.Phi.append(Phi)
         self.P_prior.append(P_prior)
         self.P_post.append(P_post)
-        self.u.append(np.zeros(P_post.shape[0]))
-        self.values.append(np.array(values, dtype=float))
+        self.u.append(self._zero)
+        self.values.append(values)
 
 
 @dataclass
