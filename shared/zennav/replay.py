@@ -24,8 +24,7 @@ class ReplayResult:
     std_pos_ned (N, 3) [m], outage (N,) bool (engine's GNSS state), the withheld windows [(start_ns, end_ns)],
     the aiding reports, the engine's final status and the wall time [s]; with smoothing, the smoothed solution at
     the same rows (a ReplayResult: std_pos_ned smoothed, status the smoother's figures, wall_s forward plus
-    smoothing)
-    and the smoother's per-epoch result (zennav.nav.smoother.Smoothed: all states, biases included)."""
+    smoothing) and the smoother's per-epoch result (zennav.nav.smoother.Smoothed: all states, biases included)."""
 
     dataset: str
     t_ns: np.ndarray
