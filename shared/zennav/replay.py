@@ -196,11 +196,12 @@ def run_replay(
 def smoothed_result(res: ReplayResult, rec: Recorder) -> tuple[Smoothed, ReplayResult]:
     """The backward pass over a replay's recorded epochs and its rows corrected (forward rows outside the smoothed
     segments keep their forward position 1-sigma)."""
-    wall0 = time.perf_counter()
+    wall0, cpu0 = time.perf_counter(), time.process_time()
     sm = smooth(rec)
     llh, v_n, q_nb, std, covered = smooth_rows(sm, res.t_ns, res.llh, res.v_n, res.q_nb)
     std_pos = np.where(covered[:, None], std[:, 0:3], res.std_pos_ned)
     wall = time.perf_counter() - wall0
-    status = {"smoother": {**sm.stats, "rows_smoothed": int(covered.sum()), "wall_s": wall}}
+    status = {"smoother": {**sm.stats, "rows_smoothed": int(covered.sum()), "wall_s": wall,
+                           "cpu_s": time.process_time() - cpu0}}
     return sm, ReplayResult(res.dataset, res.t_ns, llh, v_n, q_nb, std_pos, res.outage, res.windows, [], status,
                             res.wall_s + wall)
