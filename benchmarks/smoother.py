@@ -127,9 +127,9 @@ def long() -> None:
     print(f"forward pass with recorder     {rec:7.2f} s CPU ({100 * (rec / fwd - 1):+.0f}%)")
     print(f"smoothing (backward + rows)    {smo:7.2f} s CPU = {smo / fwd:.2f} x the forward pass (backward wall "
           f"{back:.2f} s; {st['epochs']} epochs, {st['rows_smoothed']} rows)")
-    print(f"recorder's stored arrays       {st['stored_bytes'] / 2**20:7.1f} MiB  "
-          f"({st['stored_bytes'] / st['epochs']:.0f} B per epoch = {st['stored_bytes'] / st['epochs'] / (8 * n * n):.2f}"
-          f" n x n float64 matrices, n = {n})")
+    per_epoch = st["stored_bytes"] / st["epochs"]
+    print(f"recorder's stored arrays       {st['stored_bytes'] / 2**20:7.1f} MiB  ({per_epoch:.0f} B per epoch = "
+          f"{per_epoch / (8 * n * n):.2f} n x n float64 matrices, n = {n})")
     print(f"peak memory growth of a replay with smoothing over one without: {growth:.0f} MiB (recorder, smoothed "
           f"solution and temporaries; process peak {peak:.0f} MiB with the 30 min dataset)")
     print(f"outage peaks RMS fwd {_rms(_peaks(mf)):.2f} m, smoothed {_rms(_peaks(ms)):.2f} m; horizontal RMS fwd "
