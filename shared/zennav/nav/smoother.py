@@ -20,7 +20,7 @@ error mean is always zero and the corrections themselves carry the information. 
 Stored during the forward pass (Recorder), per epoch: Phi_k and P_k+1- (n x n each), P_k+ (a third n x n matrix
 only where an update happened, else the same array as the prior), u_k, the additive states' values and the time:
 memory grows linearly with the run's length and with 1/cov_interval_s, as does the backward pass (one n x n solve
-and four n x n products per epoch).
+and three n x n products per epoch; the rows, one correction each, grow with length and IMU rate only).
 
 A covariance the engine replaces outside its propagation and update is handled by where it happens. At the
 current epoch (the GNSS gate reset, between the propagation and the fix's update: the INS taken as wrong,
