@@ -24,13 +24,18 @@ import numpy as np
 from zennav.datasets.registry import load_dataset
 from zennav.metrics import evaluate
 from zennav.params import load_filter_params, nav_config
-from zennav.replay import run_replay
+from zennav.replay import ReplayResult, run_replay
 from zennav.sim.scenarios import make_dataset
 
 
 def _ins_filter(ds):
     ds.config = nav_config(ds.config, load_filter_params(None))  # as zennav replay: the ins's filter
     return ds
+
+
+def _smoothed(res: ReplayResult) -> ReplayResult:
+    assert res.smoothed is not None  # run_replay(smoothing=True)
+    return res.smoothed
 
 
 def _peaks(m: dict) -> list[float]:
@@ -57,7 +62,7 @@ def accuracy(seeds: list[int]) -> None:
             for seed in seeds:
                 ds = _ins_filter(load_dataset(f"sim:{kind}", seed=seed))
                 res = run_replay(ds, outage_every=every, smoothing=True)
-                mf, ms = evaluate(ds, res), evaluate(ds, res.smoothed)
+                mf, ms = evaluate(ds, res), evaluate(ds, _smoothed(res))
                 fwd += _peaks(mf)
                 smo += _peaks(ms)
                 h_fwd.append(mf["horizontal_rms_m"])
@@ -80,11 +85,12 @@ def rtk() -> None:
             ds = _ins_filter(load_dataset("rtklibexplorer"))
             ds.config = ds.config.with_(nhc=nhc)
             res = run_replay(ds, outage_every=every, smoothing=True)
-            mf, ms = evaluate(ds, res), evaluate(ds, res.smoothed)
+            mf, ms = evaluate(ds, res), evaluate(ds, _smoothed(res))
             f, s = _rms(_peaks(mf)), _rms(_peaks(ms))
             print(f"{label:>16}{'on' if nhc else 'off':>5}{len(mf['outages']):>8}{f:>11.2f}{s:>11.2f}{_pct(f, s):>7}"
                   f"{max(_peaks(mf)):>11.2f}{max(_peaks(ms)):>11.2f}{mf['horizontal_rms_m']:>10.2f}"
-                  f"{ms['horizontal_rms_m']:>10.2f}{res.smoothed.status['smoother']['bridged_resets']:>8}", flush=True)
+                  f"{ms['horizontal_rms_m']:>10.2f}{_smoothed(res).status['smoother']['bridged_resets']:>8}",
+                  flush=True)
 
 
 def _maxrss_mb() -> float:
@@ -116,12 +122,12 @@ def long() -> None:
         if rep == 0:
             peak = _maxrss_mb()
             growth = peak - rss0
-        st = res.smoothed.status["smoother"]
+        st = _smoothed(res).status["smoother"]
         cpu["recorded"].append(cpu_all - st["cpu_s"])
         cpu["smoothing"].append(st["cpu_s"])
         cpu["backward"].append(st["backward_wall_s"])
     fwd, rec, smo, back = (min(cpu[k]) for k in ("plain", "recorded", "smoothing", "backward"))
-    mf, ms = evaluate(ds, res), evaluate(ds, res.smoothed)
+    mf, ms = evaluate(ds, res), evaluate(ds, _smoothed(res))
     n = res.smoothing.s.shape[1]
     print(f"forward pass without recorder  {fwd:7.2f} s CPU")
     print(f"forward pass with recorder     {rec:7.2f} s CPU ({100 * (rec / fwd - 1):+.0f}%)")
@@ -144,8 +150,8 @@ def interval() -> None:
         ds = _ins_filter(make_dataset("car", duration_s=300.0, imu_rate_hz=200.0, seed=0))
         ds.config = ds.config.with_(cov_interval_s=dt)
         res, cpu_all = _cpu_replay(ds, (120.0, 30.0, 90.0), True)
-        st = res.smoothed.status["smoother"]
-        f, s = _rms(_peaks(evaluate(ds, res))), _rms(_peaks(evaluate(ds, res.smoothed)))
+        st = _smoothed(res).status["smoother"]
+        f, s = _rms(_peaks(evaluate(ds, res))), _rms(_peaks(evaluate(ds, _smoothed(res))))
         print(f"{dt:>15.2f}{st['epochs']:>8}{st['stored_bytes'] / 2**20:>12.1f}{cpu_all - st['cpu_s']:>10.2f}"
               f"{st['cpu_s']:>10.2f}{f:>11.2f}{s:>11.2f}", flush=True)
 
