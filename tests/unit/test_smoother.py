@@ -2,10 +2,12 @@
 
 1. Against a brute-force reference: a linear system run through a closed-loop filter (corrections fed back, as the
    engine does) and the Recorder; the smoothed states and 1-sigma equal the batch least-squares solution over the
-   whole run (the exact smoother) to numerical precision, also for a row taken between two updates of an epoch and
-   across a covariance reset (two independent segments).
-2. On the simulated car through the product's replay: the smoothed solution bounds a GNSS outage from both ends,
-   and its 1-sigma is consistent (rms(error / sigma) per state group in [0.7, 1.3]).
+   whole run (the exact smoother) to numerical precision, also for a row taken between two updates of an epoch, for
+   a covariance reset at an epoch (bridged: the exact smoother with that epoch's result as a pseudo-measurement)
+   and for one between epochs (two independent segments).
+2. Through the product's replay: `zennav replay --smooth` writes both solutions and leaves the forward one
+   byte-identical; on the simulated car the smoothed solution bounds a GNSS outage from both ends and its 1-sigma
+   is consistent (rms(error / sigma) per state group in [0.7, 1.3]); the 21-state engine is smoothed whole.
 """
 from __future__ import annotations
 
