@@ -16,7 +16,8 @@
    (prints the largest differences), scores both against the truth, prints what the learning loop did over
    the bus (sets published and used, queries answered, refused and late, answers fused and rejected) and says
    plainly when learning could not help; writes nav.txt, nav.csv, metrics.json (the learned solution),
-   no-learning/ (the same for the plain ins), PNG plots and the services' log.
+   no-learning/ (the same for the plain ins), PNG plots (with the plain replay smoothed forward-backward beside
+   the two solutions over the bus, zennav.nav.smoother) and the services' log.
 
 Any service that fails, a set that does not come up, or a run that outlasts its time limit stops every
 process and raises click.ClickException (exit code 1) with the tail of the services' log.
@@ -510,7 +511,7 @@ def run_demo(out: Path, spec: DemoSpec, launch_file: Path = DEMO_LAUNCH) -> None
 
     def in_process():
         loop = InProcessLoop(TARGET, settings)
-        return (run_replay(ds, outages=spec.outages, outage_every=spec.every),
+        return (run_replay(ds, outages=spec.outages, outage_every=spec.every, smoothing=True),
                 run_replay(ds, outages=spec.outages, outage_every=spec.every, compensator=loop))
 
     in_process_result = _background(in_process)
@@ -551,8 +552,10 @@ def run_demo(out: Path, spec: DemoSpec, launch_file: Path = DEMO_LAUNCH) -> None
     plain_dir = out / "no-learning"
     write_outputs(out, ds, learned.result, m_learned)
     write_outputs(plain_dir, ds, plain.result, m_plain)
+    assert ref_plain.smoothed is not None  # run with smoothing
     plots = write_plots(out, ds, {"no learning (over the bus)": plain.result,
-                                  f"learned {settings.label} (over the bus)": learned.result})
+                                  f"learned {settings.label} (over the bus)": learned.result,
+                                  "no learning, smoothed (in-process post-processing)": ref_plain.smoothed})
 
     click.echo("\nAccuracy against the truth, both measured over the bus:")
     click.echo(side_by_side({"no learning": m_plain, f"learned ({settings.label}, {TARGET})": m_learned}))

@@ -134,6 +134,12 @@ def format_table(m: dict) -> str:
 
 def write_outputs(out_dir: Path, ds: Dataset, res: ReplayResult, metrics: dict) -> None:
     """nav.txt (KF-GINS .nav format), nav.csv and metrics.json in out_dir."""
+    write_solution(out_dir, res)
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+
+
+def write_solution(out_dir: Path, res: ReplayResult) -> None:
+    """A replay's rows as nav.txt (KF-GINS .nav format) and nav.csv in out_dir."""
     from .datasets import kfgins
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -147,4 +153,3 @@ def write_outputs(out_dir: Path, ds: Dataset, res: ReplayResult, metrics: dict) 
     )
     np.savetxt(out_dir / "nav.csv", cols, delimiter=",", header=header, comments="",
                fmt=["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%d"])
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))

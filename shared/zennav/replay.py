@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .nav.navigator import AidReport, Navigator
+from .nav.smoother import Recorder, Smoothed, smooth, smooth_rows
 from .nav.types import NS, Dataset
 
 
@@ -21,7 +22,9 @@ from .nav.types import NS, Dataset
 class ReplayResult:
     """Per-IMU-epoch solution of a replay: t_ns (N,), llh (N, 3) [rad, rad, m], v_n (N, 3) [m/s], q_nb (N, 4),
     std_pos_ned (N, 3) [m], outage (N,) bool (engine's GNSS state), the withheld windows [(start_ns, end_ns)],
-    the aiding reports, the engine's final status and the wall time [s]."""
+    the aiding reports, the engine's final status and the wall time [s]; with smoothing, the smoothed solution at
+    the same rows (a ReplayResult: std_pos_ned smoothed, status the smoother's figures, wall_s forward plus
+    smoothing) and the smoother's per-epoch result (zennav.nav.smoother.Smoothed: all states, biases included)."""
 
     dataset: str
     t_ns: np.ndarray
@@ -34,6 +37,8 @@ class ReplayResult:
     reports: list[AidReport] = field(default_factory=list)
     status: dict = field(default_factory=dict)
     wall_s: float = 0.0
+    smoothed: ReplayResult | None = None
+    smoothing: Smoothed | None = None
 
 
 def parse_outage(text: str) -> tuple[float, float]:
@@ -126,14 +131,18 @@ def run_replay(
     navigator: Navigator | None = None,
     compensator=None,
     on_epoch: Callable[[Navigator], None] | None = None,
+    smoothing: bool = False,
 ) -> ReplayResult:
     """Run the engine over ds from its initial-state time to its end (config.end_t_ns or the last IMU sample).
     GNSS fixes inside the windows are withheld; every other fix is handed over before the first IMU sample
     at or after its time. A compensator (zennav.learn.loop) learns from the engine's training samples and
     answers its queries while GNSS is lost. on_epoch(nav) is called after each IMU epoch (progress, recording;
-    it must not change the engine)."""
+    it must not change the engine). smoothing: also the forward-backward smoothed solution
+    (zennav.nav.smoother) in result.smoothed."""
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     nav = navigator or Navigator(config, ds.initial)
+    rec = Recorder() if smoothing else None
+    nav.recorder = rec
     imu, gnss = ds.imu, ds.gnss
     windows, events = sensor_events(ds, outages, outage_every)
     n = sum(1 for kind, _ in events if kind == "imu")
@@ -162,12 +171,15 @@ def run_replay(
         out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)
         std[i] = nav.std_pos_ned
         outage[i] = nav.gnss_state != "valid"
+        if rec is not None:
+            rec.mark_row(nav.t_ns)
         reports.extend(nav.pop_reports())
         if on_epoch is not None:
             on_epoch(nav)
         i += 1
     wall = time.perf_counter() - wall0
-    return ReplayResult(
+    nav.recorder = None
+    res = ReplayResult(
         dataset=ds.name,
         t_ns=t_out,
         llh=out[:, 0:3].copy(),
@@ -180,3 +192,20 @@ def run_replay(
         status=nav.status(),
         wall_s=wall,
     )
+    if rec is not None:
+        res.smoothing, res.smoothed = smoothed_result(res, rec)
+    return res
+
+
+def smoothed_result(res: ReplayResult, rec: Recorder) -> tuple[Smoothed, ReplayResult]:
+    """The backward pass over a replay's recorded epochs and its rows corrected (forward rows outside the smoothed
+    segments keep their forward position 1-sigma)."""
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    sm = smooth(rec)
+    llh, v_n, q_nb, std, covered = smooth_rows(sm, res.t_ns, res.llh, res.v_n, res.q_nb)
+    std_pos = np.where(covered[:, None], std[:, 0:3], res.std_pos_ned)
+    wall = time.perf_counter() - wall0
+    status = {"smoother": {**sm.stats, "rows_smoothed": int(covered.sum()), "wall_s": wall,
+                           "cpu_s": time.process_time() - cpu0}}
+    return sm, ReplayResult(res.dataset, res.t_ns, llh, v_n, q_nb, std_pos, res.outage, res.windows, [], status,
+                            res.wall_s + wall)

@@ -33,16 +33,17 @@ _parse_every = _click_parser("parse_outage_every")
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
                    target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None,
                    seed: int = 0, params: Path | None = None, nhc: bool | None = None, mcap: Path | None = None,
-                   quiet: bool = False) -> dict:
+                   quiet: bool = False, smooth: bool = False) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
     seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins); nhc:
     override the parameter file's non-holonomic constraint (None: keep); mcap: also write the run as a Foxglove-ready
-    MCAP; quiet: no progress line (there is none either when stderr is not a terminal)."""
+    MCAP; quiet: no progress line (there is none either when stderr is not a terminal); smooth: also the
+    forward-backward smoothed solution (metrics under "smoothed", files under smoothed/)."""
     from .datasets.errors import DataError
     from .datasets.registry import load_dataset
     from .learn.loop import make_compensator
-    from .metrics import evaluate, format_table, write_outputs
+    from .metrics import evaluate, format_table, write_outputs, write_solution
     from .params import ParamError, load_filter_params, nav_config
     from .progress import Progress
     from .replay import run_replay, sensor_events
@@ -67,21 +68,31 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         progress.on_epoch(nav)
 
     res = run_replay(ds, outages=list(outages), outage_every=every,
-                     compensator=make_compensator(compensation, target, seed), on_epoch=on_epoch)
+                     compensator=make_compensator(compensation, target, seed), on_epoch=on_epoch,
+                     smoothing=smooth)
     progress.close()
     recorder.finish(ds, sensor_events(ds, list(outages), every)[1] if mcap is not None else [], res.reports)
     metrics = evaluate(ds, res)
     learned = compensation != "none"
     metrics["compensation"] = {"model": compensation, "target": target if learned else None,
                                "seed": seed if learned else None}
+    if res.smoothed is not None:
+        metrics["smoothed"] = evaluate(ds, res.smoothed)
+        metrics["smoothed"].pop("engine")
+        metrics["smoothed"]["smoother"] = res.smoothed.status["smoother"]
     if out is not None:
         write_outputs(out, ds, res, metrics)
         recorder.write(out, res.reports, spec)
+        if res.smoothed is not None:
+            write_solution(out / "smoothed", res.smoothed)
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
+    if res.smoothed is not None and not as_json:
+        click.echo("smoothed (forward-backward):\n" + format_table(metrics["smoothed"]))
     if not as_json and (heading_unknown or adaptive_r is not None):
         click.echo(_alignment_summary(res.status, int(ds.initial.t_ns)))
     if out is not None and not as_json:
-        click.echo(f"wrote {out / 'nav.txt'}, {out / 'nav.csv'}, {out / 'metrics.json'}, aid.csv, biases.csv")
+        smoothed = f", {out / 'smoothed' / 'nav.txt'}, {out / 'smoothed' / 'nav.csv'}" if smooth else ""
+        click.echo(f"wrote {out / 'nav.txt'}, {out / 'nav.csv'}, {out / 'metrics.json'}, aid.csv, biases.csv{smoothed}")
     if mcap is not None and not as_json:
         click.echo(f"wrote {mcap} (opens in Foxglove: map, 3-D pose, every message)")
     return metrics
@@ -158,8 +169,11 @@ def _setup_logging(verbose: int) -> None:
 @click.option("--nhc/--no-nhc", "nhc", default=None,
               help="Non-holonomic constraint of a land vehicle (no sideslip, no jump); default: the parameter "
                    "file's (off).")
+@click.option("--smooth", is_flag=True,
+              help="Also smooth the run forward-backward (Rauch-Tung-Striebel over the error-state filter, all "
+                   "states): metrics of both, the smoothed nav.txt/nav.csv under OUT/smoothed/.")
 @_with_outage_opts
-def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, outages, every, out, as_json,
+def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, smooth, outages, every, out, as_json,
            compensation, target, seed, verbose, mcap, quiet):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
@@ -171,7 +185,7 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, ou
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
-                   heading_unknown, adaptive_r, seed, params, nhc, mcap, quiet)
+                   heading_unknown, adaptive_r, seed, params, nhc, mcap, quiet, smooth)
 
 
 @click.command("report")

@@ -28,6 +28,7 @@ import logging
 import math
 from collections import Counter
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -50,11 +51,14 @@ from .eskf import (
     scale_factor_coupling,
 )
 from .learning import LearningTap, LearnQuery, LearnSample
-from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_to_quat
+from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_quat_xyz, rotvec_to_quat
 from .strapdown import NavState, mechanize
 from .types import NS, GnssFix, InitialState, NavConfig
 
-__all__ = ["AidReport", "NavSolution", "Navigator"]
+if TYPE_CHECKING:
+    from .smoother import Recorder
+
+__all__ = ["AidReport", "NavSolution", "Navigator", "correct_nav"]
 
 log = logging.getLogger("zennav.nav")
 
@@ -79,6 +83,24 @@ class NavSolution:
     std_v_n: np.ndarray
     std_euler: np.ndarray
     gnss_state: str
+
+
+def correct_nav(lat, lon, h, v_n, q_nb, dx):
+    """Closed-loop correction of navigation states by their estimated errors dx (zennav.nav.eskf order, estimate
+    minus truth): one state (lat, lon [rad], h [m] floats, v_n (3,) [m/s, NED], q_nb (4,), dx (n,)) or N states
+    (lat, lon, h (N,), v_n (3, N), q_nb (4, N), dx (n, N)). Returns the corrected (lat, lon, h, v_n, q_nb); the
+    engine's feedback and the smoother apply their corrections with it."""
+    xp = math if isinstance(lat, float) else np
+    r_m, r_n = earth.radii(lat)
+    lat = lat - dx[0] / (r_m + h)
+    lon = lon - dx[1] / ((r_n + h) * xp.cos(lat))  # at the corrected latitude
+    h = h + dx[2]
+    v_n = v_n - dx[VEL]
+    if xp is math:
+        q = quat_multiply(rotvec_to_quat(dx[ATT]), q_nb)
+        return lat, lon, h, v_n, q / np.linalg.norm(q)
+    q = quat_multiply(np.array([rotvec_quat_xyz(*rv) for rv in dx[ATT].T.tolist()]).T, q_nb)
+    return lat, lon, h, v_n, q / np.sqrt(np.sum(q * q, axis=0))
 
 
 class Navigator:
@@ -115,6 +137,8 @@ class Navigator:
         self._dx_since_fix = np.zeros(N_STATES)  # corrections of the GNSS fix being fused
         self.last_dx = np.zeros(N_STATES)  # correction of the last fused update
         self._learn_start_t_ns = self.t_ns + int(config.learn_after_s * NS)
+        # zennav.nav.smoother.Recorder (or None): told of every covariance propagation and fused update
+        self.recorder: Recorder | None = None
         self._aug_x = np.zeros(0)  # values of the augmented states (estimate minus truth convention as dx)
         self._aug_decay = np.zeros(0)  # their F diagonal: -1/tau [1/s] (0: random constant / random walk)
         self.aug_blocks: dict[str, slice] = {}
@@ -319,9 +343,14 @@ class Navigator:
             self.kf.P *= factor  # overconfident on small, steady innovations: fading memory (nav.consistency)
             self.counters[f"{name}_inflated"] += 1
             faults.append("inflated")
+            if self.recorder is not None:
+                self.recorder.on_inflate(self.t_ns, self.kf.P)
+        P_before = self.kf.P
         res = self.kf.update(z, H, R, gate, m.gain_states)
         if res.fused:
             self.feedback(res.dx)
+            if self.recorder is not None:
+                self.recorder.on_update(self.t_ns, res.dx, P_before, self.kf.P, self._additive_values())
             self.last_dx = res.dx
             self._dx_since_fix += res.dx
             self.counters[f"{name}_fused"] += 1
@@ -360,7 +389,10 @@ class Navigator:
                 scale_factor_coupling(F_aug, C_nb, f_b, np.array(self._cov_dtheta) / dt, *self._scale)
             F = F_aug
         Phi, Qd = discretize(F, self._q_psd, dt)
+        P_before = self.kf.P
         self.kf.propagate(Phi, Qd)
+        if self.recorder is not None:
+            self.recorder.on_propagate(self.t_ns, dt, Phi, P_before, self.kf.P, self._additive_values())
         self._cov_dt = 0.0
         self._cov_dvel = [0.0, 0.0, 0.0]
         self._cov_dtheta = [0.0, 0.0, 0.0]
@@ -369,15 +401,8 @@ class Navigator:
     def feedback(self, dx: np.ndarray) -> None:
         """Apply the estimated error to the navigation state (closed loop) and reset it to zero."""
         s = self.state
-        r_m, r_n = earth.radii(s.lat)
-        s.lat -= dx[0] / (r_m + s.h)
-        s.lon -= dx[1] / ((r_n + s.h) * math.cos(s.lat))  # at the corrected latitude
-        s.h += dx[2]
-        s.vn -= dx[3]
-        s.ve -= dx[4]
-        s.vd -= dx[5]
-        q = quat_multiply(rotvec_to_quat(dx[ATT]), s.q_nb)
-        q /= np.linalg.norm(q)
+        s.lat, s.lon, s.h, v_n, q = correct_nav(s.lat, s.lon, s.h, s.v_n, s.q_nb, dx)
+        s.vn, s.ve, s.vd = v_n
         s.q0, s.q1, s.q2, s.q3 = (float(x) for x in q)
         self.gyro_bias = [b - d for b, d in zip(self.gyro_bias, dx[BG].tolist())]
         self.accel_bias = [b - d for b, d in zip(self.accel_bias, dx[BA].tolist())]
@@ -457,6 +482,11 @@ class Navigator:
         self.t_ns = t_ns
         self._omega_dt = (dth, dt)
         self.alignment.add(dth, dv, dt)
+
+    def _additive_values(self) -> np.ndarray:
+        """Nominal values of the error states after the navigation states (gyro and accel biases, augmented
+        states), in state order."""
+        return np.concatenate([self.gyro_bias, self.accel_bias, self._aug_x])
 
     def _update_stds(self) -> None:
         """Refresh the 1-sigma of position [m], velocity [m/s] and attitude error [rad] from P."""
