@@ -31,3 +31,6 @@ main.add_command(launch_cmd)
 main.add_command(monitor_cmd)
 main.add_command(record_cmd)
 main.add_command(bus_replay_cmd)
+from .keys_cli import keys_cmd  # noqa: E402
+
+main.add_command(keys_cmd)

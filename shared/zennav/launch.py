@@ -24,6 +24,10 @@ Launch file (YAML)::
 Commands: "zennav..." executables are taken from this interpreter's bin directory; "{python}" is this
 interpreter; "{rendezvous}" and "{vehicle}" are substituted. Every service gets ZENNAV_CONNECT={rendezvous},
 ZENNAV_VEHICLE and ZENNAV_MODE in its environment (explicit --connect/--listen in a command win).
+
+Services die with their launcher, even one killed with SIGKILL: each runs in its own session (a Ctrl-C in the
+terminal reaches the launcher only, which stops them in order) with the parent-death signal set to SIGTERM
+(zennav.pdeath, Linux), so no service is left running unsupervised.
 """
 from __future__ import annotations
 
@@ -37,6 +41,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
+
+from . import pdeath
 
 POLICIES = ("no", "on-failure", "always")
 
@@ -151,8 +157,8 @@ class Launcher:
 
     def start(self, c: Child) -> None:
         cmd = _resolve(c.spec.command, self.spec)
-        c.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-                                  env=self._env(c.spec), start_new_session=True)
+        c.proc = subprocess.Popen(pdeath.wrap(cmd), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  stdin=subprocess.DEVNULL, env=self._env(c.spec), start_new_session=True)
         c.started_at = time.monotonic()
         c.finished = False
         c.readers = [threading.Thread(target=self._pump, args=(c.spec.name, st), daemon=True)
