@@ -72,7 +72,12 @@ class LaunchSpec:
 
 
 def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
-    data = yaml.safe_load(Path(path).read_text())
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except yaml.YAMLError as e:
+        raise ValueError(f"{path}: not YAML: {' '.join(str(e).split())}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a launch file (a YAML map with rendezvous and services)")
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
     if not data.get("rendezvous"):
         raise ValueError(f"{path}: no rendezvous: give the router's endpoint, e.g. --rendezvous tcp/<router-ip>:7447")

@@ -51,11 +51,11 @@ from zennav import messages as M
 from zennav.learn.settings import LearnSettings
 from zennav.learn.signing import Verifier
 from zennav.nodes.predictor import PredictorNode
-from zennav.service import ServiceRunner, add_bus_args
+from zennav.service import ArgumentParser, ServiceRunner, add_bus_args
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="zennav-predictor", description="zennav predictor service: live ANFIS "
+    p = ArgumentParser(prog="zennav-predictor", description="zennav predictor service: live ANFIS "
                                 "parameter sets (numpy), validated hot swap, answers learn/query")
     p.add_argument("--queue", type=int, default=4096, help="query queue capacity (back-pressure beyond)")
     p.add_argument("--no-fetch", action="store_true", help="do not ask for the latest parameter sets at start")

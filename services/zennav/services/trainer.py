@@ -59,7 +59,7 @@ from zennav.learn.settings import MODELS, OPTIMIZERS, LearnSettings
 from zennav.learn.signing import Signer
 from zennav.nav.learning import TARGETS
 from zennav.nodes.trainer import TrainerNode, VersionFile
-from zennav.service import ServiceRunner, add_bus_args
+from zennav.service import ArgumentParser, ServiceRunner, add_bus_args
 
 if TYPE_CHECKING:
     from zennav.bus import Publisher
@@ -69,7 +69,7 @@ DEFAULTS = LearnSettings()
 
 def build_parser() -> argparse.ArgumentParser:
     d = DEFAULTS
-    p = argparse.ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS (premises by "
+    p = ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS (premises by "
                                 "hybrid LSE + Fletcher-Reeves CG or PSO) or online Elman on the ins's samples, "
                                 "versioned parameter sets; defaults: zennav.learn.settings.LearnSettings")
     p.add_argument("--model", default=d.model, choices=MODELS, help="anfis: fitted on the newest samples; "
@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     targets = [t.strip() for t in args.targets.split(",") if t.strip()]
     if not targets or not set(targets) <= set(TARGETS):
-        raise SystemExit(f"--targets: choose from {TARGETS}")
+        raise SystemExit(f"zennav-trainer: --targets: choose from {TARGETS}")
     try:
         settings = LearnSettings(model=args.model, optimizer=args.optimizer, window=args.window,
                                  min_samples=args.min_samples, retrain_samples=args.retrain_samples,
@@ -128,10 +128,11 @@ def main(argv=None) -> int:
     if versions is None:
         run.log.warning("no --state-dir: versions continue only above a set still served on the bus")
     worker = FitWorker(settings.torch_threads) if settings.model == "anfis" else None
-    try:
-        device = args.device or (worker.device() if worker else "cpu")
+    try:  # the worker starts now, from the main thread (its parent-death signal follows that thread)
+        device = worker.device() if worker else "cpu"
     except RuntimeError as e:
         return run.fail(f"fit worker: {e}")
+    device = args.device or device
     k = run.keys
     bus = run.bus
     pubs: dict[str, Publisher] = {}
