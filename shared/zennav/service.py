@@ -73,6 +73,7 @@ class ServiceRunner:
         self.keys = self.bus.keys
         self.state = "starting"
         self.detail = ""
+        self.describe: Callable[[], str] | None = None  # when set: the detail of every heartbeat (live progress)
         self.counters: Callable[[], dict] = dict
         self._stop = threading.Event()
         self._period = args.status_period
@@ -119,7 +120,8 @@ class ServiceRunner:
 
     def heartbeat(self) -> None:
         try:
-            self.bus.publish_status(self.state, self.detail, self.counters())
+            detail = self.describe() if self.describe is not None and self.state == "running" else self.detail
+            self.bus.publish_status(self.state, detail, self.counters())
         except Exception:
             self.log.exception("status publish failed")
 

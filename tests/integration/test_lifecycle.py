@@ -128,7 +128,7 @@ def test_sigterm_during_a_fit_exits_cleanly_every_time(cluster):
         rc = trainer.wait(10)
         codes.append((rc, round(time.monotonic() - t1, 2)))
         assert rc == 0, (i, rc, trainer.text()[-3000:])
-        assert "Traceback" not in trainer.text() and "published" not in trainer.text()
+        assert "Traceback" not in trainer.text() and f"published {NAME}" not in trainer.text()
     print(f"\n{len(codes)} SIGTERMs mid-fit: (exit code, seconds to exit) {codes}")
 
 
@@ -178,6 +178,12 @@ services:
     print(f"\nlauncher SIGKILLed: its {len(tree)} processes ({len(pids)} services + the fit worker) all gone")
 
 
+def _snapshot(monitor) -> dict:
+    """The JSON snapshot `zennav-monitor --once --json` printed (its log lines around it)."""
+    text = monitor.text()
+    return json.JSONDecoder().raw_decode(text[text.index("{"):])[0]
+
+
 def test_ins_alive_but_not_joined_shows_degraded_in_the_monitor(cluster):
     """IMU samples of a stream whose start the ins cannot get flow on the bus: the ins is alive and sends its
     status, but drops every sample (not its stream). The monitor shows it degraded with the reason; before the
@@ -187,7 +193,7 @@ def test_ins_alive_but_not_joined_shows_degraded_in_the_monitor(cluster):
     mon = ("--once", "--json", "--duration", "6", "--stall", "3")
     before = cluster.start("monitor-a", "zennav.services.monitor", *mon)
     assert before.wait(60) == 0, before.text()
-    ins = json.loads(before.text()[before.text().index("{"):])["services"]["ins"]
+    ins = _snapshot(before)["services"]["ins"]
     assert (ins["health"], ins["alive"]) == ("running", True), ins
     imu = cluster.bus.publisher(k.imu())
     after = cluster.start("monitor-b", "zennav.services.monitor", *mon)
@@ -196,8 +202,7 @@ def test_ins_alive_but_not_joined_shows_degraded_in_the_monitor(cluster):
         t += 5_000_000
         imu.put(M.make("imu", t, cseq=t // 5_000_000, dt_ns=5_000_000, dtheta=[0.0] * 3, dvel=[0.0] * 3))
         time.sleep(0.005)
-    snap = json.loads(after.text()[after.text().index("{"):])
-    ins = snap["services"]["ins"]
+    ins = _snapshot(after)["services"]["ins"]
     assert after.wait(5) == 0 and ins["alive"] and ins["health"] == "degraded", ins
     assert ins["why"].startswith("not joined:"), ins["why"]
     assert ins["counters"]["imu"] == 0 and ins["counters"]["drop_no_stream"] > 0

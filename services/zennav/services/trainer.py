@@ -152,6 +152,7 @@ def main(argv=None) -> int:
             if msg["name"] == name:
                 node.seen_version(t, msg["version"])
     link = {"up": True, "losses": 0, "republished": 0}
+    run.describe = node.detail  # its sets, and "fitting ..." while a fit runs
     run.counters = lambda: {**node.counters(), "link_losses": link["losses"], "republished": link["republished"]}
     bus.subscribe(k.learn_samples(), lambda key, msg, recv_ns: node.on_sample(msg), channel="fifo", capacity=8192,
                   name="samples")
@@ -185,7 +186,6 @@ def main(argv=None) -> int:
                 if run.stopping:
                     break
                 node.train(t)
-                run.detail = node.detail()
                 run.heartbeat()  # the progress now: a lockstep predictor waits on it (zennav.services.predictor)
 
     link["up"] = connected()
