@@ -29,7 +29,7 @@ LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(name)s: %(message)s"
 class ArgumentParser(argparse.ArgumentParser):
     """argparse whose errors are one line ("prog: error: ... (see --help)"), not the usage block."""
 
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 

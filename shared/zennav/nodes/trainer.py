@@ -27,7 +27,7 @@ DEFAULTS = LearnSettings()
 class VersionFile:
     """The last published version per model name, in <state dir>/versions.json (written atomically)."""
 
-    def __init__(self, directory):
+    def __init__(self, directory) -> None:
         self.path = Path(directory) / "versions.json"
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.versions: dict[str, int] = {}
