@@ -11,6 +11,8 @@ Launch file (YAML)::
     mode: peer                       # ZENNAV_MODE of the services (peer | client: e.g. deploy/trainer.yaml)
     up_timeout_s: 60                 # how long to wait for everything to be alive
     stop_timeout_s: 10               # SIGTERM, then SIGKILL after this
+    keys: keys                       # {keys}: the parameter-set key directory (`zennav keys DIR`; ZENNAV_KEYS wins)
+    state: state                     # {state}: the services' state directory (ZENNAV_STATE_DIR wins)
     services:
       - name: router                 # the liveliness name awaited (default: name)
         command: [zennav, router, --listen, "{rendezvous}"]
@@ -22,7 +24,8 @@ Launch file (YAML)::
         exit_ok: false               # true: exiting with 0 is expected (ingest at the end of a stream)
 
 Commands: "zennav..." executables are taken from this interpreter's bin directory; "{python}" is this
-interpreter; "{rendezvous}" and "{vehicle}" are substituted. Every service gets ZENNAV_CONNECT={rendezvous},
+interpreter; "{rendezvous}", "{vehicle}", "{keys}" and "{state}" are substituted (relative paths: from the
+directory the launcher runs in). Every service gets ZENNAV_CONNECT={rendezvous},
 ZENNAV_VEHICLE and ZENNAV_MODE in its environment (explicit --connect/--listen in a command win).
 
 Services die with their launcher, even one killed with SIGKILL: each runs in its own session (a Ctrl-C in the
@@ -69,6 +72,8 @@ class LaunchSpec:
     up_timeout_s: float
     stop_timeout_s: float
     services: list
+    keys: str = "keys"
+    state: str = "state"
 
 
 def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
@@ -104,11 +109,14 @@ def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
     return LaunchSpec(name=str(data.get("name", Path(path).stem)), vehicle=str(data.get("vehicle", "car")),
                       rendezvous=str(data["rendezvous"]),
                       mode=str(data.get("mode", "peer")), up_timeout_s=float(data.get("up_timeout_s", 60)),
-                      stop_timeout_s=float(data.get("stop_timeout_s", 10)), services=services)
+                      stop_timeout_s=float(data.get("stop_timeout_s", 10)), services=services,
+                      keys=os.environ.get("ZENNAV_KEYS") or str(data.get("keys", "keys")),
+                      state=os.environ.get("ZENNAV_STATE_DIR") or str(data.get("state", "state")))
 
 
 def _resolve(cmd: list, spec: LaunchSpec) -> list:
-    subst = {"python": sys.executable, "rendezvous": spec.rendezvous, "vehicle": spec.vehicle}
+    subst = {"python": sys.executable, "rendezvous": spec.rendezvous, "vehicle": spec.vehicle, "keys": spec.keys,
+             "state": spec.state}
     out = [c.format(**subst) for c in cmd]
     if out and out[0].startswith("zennav"):
         cand = Path(sys.executable).parent / out[0]

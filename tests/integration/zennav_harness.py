@@ -137,7 +137,7 @@ class Cluster:
             self.env.pop(k, None)
         # trainers sign with the test process's key, predictors trust it; versions persist per test
         private, public = dev_keys()
-        self.env.update(ZENNAV_SIGNING_KEY=str(private), ZENNAV_VERIFY_KEY=str(public),
+        self.env.update(ZENNAV_SIGNING_KEY=str(private), ZENNAV_VERIFY_KEY=str(public), ZENNAV_KEYS=str(public.parent),
                         ZENNAV_STATE_DIR=str(tmp / "state"))
 
     def bus_args(self) -> list:
