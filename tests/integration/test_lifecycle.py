@@ -207,3 +207,44 @@ def test_ins_alive_but_not_joined_shows_degraded_in_the_monitor(cluster):
     assert ins["why"].startswith("not joined:"), ins["why"]
     assert ins["counters"]["imu"] == 0 and ins["counters"]["drop_no_stream"] > 0
     print(f"\nmonitor: ins {ins['health']}: {ins['why']}")
+
+
+def test_bad_input_is_one_line_never_a_traceback(tmp_path):
+    """Each command with a bad file or flag: a non-zero exit and one error line (no traceback, no usage block;
+    click's two hint lines before its error line, "Usage: ..." and "Try '... --help'", are allowed)."""
+    import subprocess
+    import sys
+
+    from zennav_harness import dev_keys
+
+    bindir = Path(sys.executable).parent
+    (tmp_path / "bad.yaml").write_text("services: [\n")
+    (tmp_path / "list.yaml").write_text("- 1\n")
+    (tmp_path / "bad.pem").write_text("not a key\n")
+    public = dev_keys()[1]
+    cases = {
+        "launch: not YAML": ["zennav", "launch", tmp_path / "bad.yaml"],
+        "launch: not a map": ["zennav", "launch", tmp_path / "list.yaml"],
+        "replay: unknown dataset": ["zennav", "replay", tmp_path / "bad.yaml"],
+        "demo: unknown dataset": ["zennav", "demo", "--dataset", "nosuch:x", "--out", tmp_path / "demo"],
+        "keys: not a directory": ["zennav", "keys", tmp_path / "bad.pem"],
+        "trainer: bad key file": ["zennav-trainer", "--signing-key", tmp_path / "bad.pem"],
+        "trainer: public key as signing key": ["zennav-trainer", "--signing-key", public],
+        "trainer: no key": ["zennav-trainer"],
+        "trainer: bad target": ["zennav-trainer", "--unsigned", "--targets", "nosuch"],
+        "trainer: bad zenoh config": ["zennav-trainer", "--unsigned", "--zenoh-config", tmp_path / "bad.yaml"],
+        "predictor: no key": ["zennav-predictor"],
+        "predictor: missing key file": ["zennav-predictor", "--verify-key", tmp_path / "none.pem"],
+        "predictor: bad endpoint": ["zennav-predictor", "--allow-unsigned", "--connect", "nowhere"],
+        "monitor: bad flag value": ["zennav-monitor", "--interval", "often"],
+        "monitor: bad zenoh config": ["zennav-monitor", "--once", "--zenoh-config", tmp_path / "bad.yaml"],
+    }
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ZENNAV_")}
+    for what, argv in cases.items():
+        p = subprocess.run([str(bindir / argv[0]), *map(str, argv[1:])], capture_output=True, text=True, env=env,
+                           timeout=120, cwd=tmp_path)
+        lines = [ln for ln in (p.stdout + p.stderr).splitlines()
+                 if ln.strip() and not ln.startswith(("Usage: ", "Try '"))]
+        assert p.returncode not in (0, None) and "Traceback" not in p.stderr, (what, p.returncode, p.stderr)
+        assert len(lines) == 1, (what, lines)
+        print(f"\n{what}: rc {p.returncode}: {lines[0][:150]}", end="")

@@ -51,8 +51,9 @@ class Signer:
         from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
         from cryptography.hazmat.primitives.serialization import load_pem_private_key
 
+        pem = _read(path, "signing key")
         try:
-            key = load_pem_private_key(_read(path, "signing key"), password=None)
+            key = load_pem_private_key(pem, password=None)
         except (ValueError, TypeError) as e:
             raise ValueError(f"signing key {path}: not an unencrypted PEM private key ({e})") from None
         if not isinstance(key, Ed25519PrivateKey):
@@ -76,8 +77,9 @@ class Verifier:
         from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
         from cryptography.hazmat.primitives.serialization import load_pem_public_key
 
+        pem = _read(path, "verify key")
         try:
-            key = load_pem_public_key(_read(path, "verify key"))
+            key = load_pem_public_key(pem)
         except (ValueError, TypeError) as e:
             raise ValueError(f"verify key {path}: not a PEM public key ({e})") from None
         if not isinstance(key, Ed25519PublicKey):
