@@ -116,21 +116,21 @@ class MonitorState:
                 elif seq < nxt:
                     ks.dups += 1
             ks.next_seq[src] = max(seq + 1, nxt or 0)
-            self._content(key, msg)
+            self._content(key, msg, recv_ns)
 
-    def _content(self, key: str, msg: dict) -> None:
+    def _content(self, key: str, msg: dict, recv_ns: int) -> None:
         schema = msg["schema"]
         prefix = self.keys.nav_prefix_of(key)
         nav = self.navs.setdefault(prefix, {}) if prefix else self.nav
         if schema == "service_status":
             self.services[msg["service"]] = {"state": msg["state"], "detail": msg["detail"],
                                              "counters": msg["counters"], "rejected": msg["rejected"],
-                                             "wall_ns": msg["t_ns"]}
+                                             "wall_ns": msg["t_ns"], "recv_ns": recv_ns}
             prog = _progress(msg["counters"])
             if prog is not None:
                 hist = self.progress.setdefault(msg["service"], deque())
-                hist.append((time.time_ns(), prog[1], prog[2]))
-                while len(hist) > 2 and hist[1][0] < time.time_ns() - 2 * self.stall_s * 1e9:
+                hist.append((recv_ns, prog[1], prog[2]))
+                while len(hist) > 2 and hist[1][0] < recv_ns - 2 * self.stall_s * 1e9:
                     hist.popleft()  # keep one entry older than the stall window
         elif schema == "nav_status":
             keep = {k: v for k, v in nav.items() if k.startswith("solution_")}
@@ -182,7 +182,7 @@ class MonitorState:
             return "down", "no liveliness token"
         if st.get("state") == "error":
             return "error", st.get("detail") or ""
-        if st and (age := (now_ns - st["wall_ns"]) / 1e9) > self.stale_s:
+        if st and (age := (now_ns - st["recv_ns"]) / 1e9) > self.stale_s:  # this monitor's clock only
             return "degraded", f"no status for {age:.0f} s"
         prog = _progress(st.get("counters", {}))
         hist = self.progress.get(service)
@@ -205,7 +205,8 @@ class MonitorState:
         with self.lock:
             self.alive[service] = alive
 
-    def snapshot(self) -> dict:
+    def snapshot(self, now_ns: int | None = None) -> dict:
+        """Everything, with the health of each service as of now_ns (wall clock [ns], default now)."""
         now = time.monotonic()
         with self.lock:
             dt = max(now - self.t_rate, 1e-6)
@@ -221,7 +222,7 @@ class MonitorState:
                              "drops": ks.drops, "duplicates": ks.dups, "rejected": dict(ks.rejected)}
             names = set(self.alive) | set(self.services)
             services = {}
-            now_ns = time.time_ns()
+            now_ns = time.time_ns() if now_ns is None else now_ns
             for s in sorted(names):
                 st = self.services.get(s, {})
                 health, why = self.health(s, bool(self.alive.get(s, False)), st, now_ns)
@@ -229,7 +230,7 @@ class MonitorState:
                                "state": st.get("state"),
                                "detail": st.get("detail"), "rejected": st.get("rejected", {}),
                                "counters": st.get("counters", {}),
-                               "status_age_s": _r((time.time_ns() - st["wall_ns"]) / 1e9) if st else None}
+                               "status_age_s": _r((now_ns - st["recv_ns"]) / 1e9) if st else None}
             aid = {src: {"count": a["count"], "fused": a["fused"], "rejected": dict(a["rejected"]),
                          "last_test_ratio": _r(a.get("last_test_ratio")),
                          "p50_test_ratio": _r(_pct(list(a["ratios"]), 50)),
