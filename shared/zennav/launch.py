@@ -35,6 +35,7 @@ terminal reaches the launcher only, which stops them in order) with the parent-d
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -170,6 +171,8 @@ class Launcher:
 
     def start(self, c: Child) -> None:
         cmd = _resolve(c.spec.command, self.spec)
+        if shutil.which(cmd[0]) is None:  # said here: the parent-death wrapper would only report an exit
+            raise FileNotFoundError(f"{c.spec.name}: command not found: {cmd[0]}")
         c.proc = subprocess.Popen(pdeath.wrap(cmd), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                   stdin=subprocess.DEVNULL, env=self._env(c.spec), start_new_session=True)
         c.started_at = time.monotonic()
