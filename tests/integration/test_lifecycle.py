@@ -171,11 +171,12 @@ services:
     wait_until(lambda: "all 5 services up" in launcher.text(), 30, "the launcher's 'all up'")
     pids = {int(p) for p in re.findall(r"started \S+ \(pid (\d+)\)", launcher.text())}
     tree = _descendants(launcher.pid)
-    assert len(pids) == 5 and pids <= tree and len(tree) >= 6, (pids, tree)  # + the trainer's fit worker
+    assert len(pids) == 5 and pids <= tree and len(tree) >= 6, (pids, tree)  # + the trainer's fit worker, ...
     launcher.kill()
     wait_until(lambda: not any(_running(p) for p in tree), 20, f"every service to exit ({tree})")
     cluster.wait_alive(names, 20, launcher, alive=False)
-    print(f"\nlauncher SIGKILLed: its {len(tree)} processes ({len(pids)} services + the fit worker) all gone")
+    print(f"\nlauncher SIGKILLed: its {len(tree)} processes ({len(pids)} services, the trainer's fit worker and "
+          f"its multiprocessing helper) all gone")
 
 
 def _snapshot(monitor) -> dict:
