@@ -6,6 +6,9 @@ Wiring table
     queries    svc/*/status, nav/status, attitude, learn/model/*   latest values at start (late joiner)
     publishes  svc/<name>/status         its own heartbeat (when run as a service)
 
+Health per service (zennav.nodes.monitor: down, error, degraded with the reason, running) is judged here from
+liveliness, status age (--stale) and whether a service's work counter moves while its input flows (--stall).
+
 Drops are seen from the monitor: if the monitor itself falls behind by more than its ring capacity, the
 samples it skipped count as drops too.
 """

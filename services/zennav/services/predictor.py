@@ -56,7 +56,7 @@ from zennav.service import ArgumentParser, ServiceRunner, add_bus_args
 
 def build_parser() -> argparse.ArgumentParser:
     p = ArgumentParser(prog="zennav-predictor", description="zennav predictor service: live ANFIS "
-                                "parameter sets (numpy), validated hot swap, answers learn/query")
+                       "parameter sets (numpy), validated hot swap, answers learn/query")
     p.add_argument("--queue", type=int, default=4096, help="query queue capacity (back-pressure beyond)")
     p.add_argument("--no-fetch", action="store_true", help="do not ask for the latest parameter sets at start")
     p.add_argument("--max-domain-excess", type=float, default=LearnSettings().max_domain_excess,

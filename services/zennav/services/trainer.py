@@ -70,8 +70,8 @@ DEFAULTS = LearnSettings()
 def build_parser() -> argparse.ArgumentParser:
     d = DEFAULTS
     p = ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS (premises by "
-                                "hybrid LSE + Fletcher-Reeves CG or PSO) or online Elman on the ins's samples, "
-                                "versioned parameter sets; defaults: zennav.learn.settings.LearnSettings")
+                       "hybrid LSE + Fletcher-Reeves CG or PSO) or online Elman on the ins's samples, "
+                       "versioned parameter sets; defaults: zennav.learn.settings.LearnSettings")
     p.add_argument("--model", default=d.model, choices=MODELS, help="anfis: fitted on the newest samples; "
                    "elman: learns online from every sample (seed 002)")
     p.add_argument("--optimizer", default=d.optimizer, choices=OPTIMIZERS,
