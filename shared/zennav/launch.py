@@ -35,7 +35,6 @@ terminal reaches the launcher only, which stops them in order) with the parent-d
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -171,10 +170,8 @@ class Launcher:
 
     def start(self, c: Child) -> None:
         cmd = _resolve(c.spec.command, self.spec)
-        if shutil.which(cmd[0]) is None:  # said here: the parent-death wrapper would only report an exit
-            raise FileNotFoundError(f"{c.spec.name}: command not found: {cmd[0]}")
-        c.proc = subprocess.Popen(pdeath.wrap(cmd), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                  stdin=subprocess.DEVNULL, env=self._env(c.spec), start_new_session=True)
+        c.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                                  env=self._env(c.spec), start_new_session=True, preexec_fn=pdeath.preexec())
         c.started_at = time.monotonic()
         c.finished = False
         c.readers = [threading.Thread(target=self._pump, args=(c.spec.name, st), daemon=True)

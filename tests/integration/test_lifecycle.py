@@ -173,10 +173,12 @@ services:
     tree = _descendants(launcher.pid)
     assert len(pids) == 5 and pids <= tree and len(tree) >= 6, (pids, tree)  # + the trainer's fit worker, ...
     launcher.kill()
-    wait_until(lambda: not any(_running(p) for p in tree), 20, f"every service to exit ({tree})")
+    t0 = time.monotonic()
+    wait_until(lambda: not any(_running(p) for p in tree), 30, f"every service to exit ({tree})")
+    gone_s = time.monotonic() - t0
     cluster.wait_alive(names, 20, launcher, alive=False)
     print(f"\nlauncher SIGKILLed: its {len(tree)} processes ({len(pids)} services, the trainer's fit worker and "
-          f"its multiprocessing helper) all gone")
+          f"its multiprocessing helper) all gone in {gone_s:.1f} s")
 
 
 def _snapshot(monitor) -> dict:
