@@ -174,8 +174,11 @@ services:
     assert len(pids) == 5 and pids <= tree and len(tree) >= 6, (pids, tree)  # + the trainer's fit worker, ...
     launcher.kill()
     t0 = time.monotonic()
-    wait_until(lambda: not any(_running(p) for p in tree), 30, f"every service to exit ({tree})")
+    while any(_running(p) for p in tree) and time.monotonic() - t0 < 30:
+        time.sleep(0.1)
     gone_s = time.monotonic() - t0
+    left = {p: Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ")[:200] for p in tree if _running(p)}
+    assert not left, f"still running {gone_s:.0f} s after the launcher's SIGKILL: {left}"
     cluster.wait_alive(names, 20, launcher, alive=False)
     print(f"\nlauncher SIGKILLed: its {len(tree)} processes ({len(pids)} services, the trainer's fit worker and "
           f"its multiprocessing helper) all gone in {gone_s:.1f} s")
