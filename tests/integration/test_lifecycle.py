@@ -107,8 +107,9 @@ def test_restarted_trainer_continues_its_versions_and_the_predictor_takes_them(c
 
 
 def test_sigterm_during_a_fit_exits_cleanly_every_time(cluster):
-    """A trainer stopped with SIGTERM in the middle of a long fit (its status says "fitting") exits with code 0
-    within 10 s; STOPS times in a row (ZENNAV_LIFECYCLE_STOPS, default 15)."""
+    """A trainer stopped with SIGTERM in the middle of a long fit (its status says "fitting") interrupts the fit
+    and exits with code 0 within 5 s (a fit left to run on a thread holds the exit for its join timeouts); STOPS
+    times in a row (ZENNAV_LIFECYCLE_STOPS, default 15)."""
     k = cluster.keys
     status = Collector(cluster.bus, k.svc_status("trainer"), channel="ring", capacity=64)
     spub = cluster.bus.publisher(k.learn_samples())
@@ -127,7 +128,8 @@ def test_sigterm_during_a_fit_exits_cleanly_every_time(cluster):
         t1 = time.monotonic()
         rc = trainer.wait(10)
         codes.append((rc, round(time.monotonic() - t1, 2)))
-        assert rc == 0, (i, rc, trainer.text()[-3000:])
+        assert rc == 0 and codes[-1][1] < 5.0, (i, codes[-1], trainer.text()[-3000:])
+        assert "through 200 samples interrupted" in trainer.text(), trainer.text()[-3000:]
         assert "Traceback" not in trainer.text() and f"published {NAME}" not in trainer.text()
     print(f"\n{len(codes)} SIGTERMs mid-fit: (exit code, seconds to exit) {codes}")
 

@@ -198,6 +198,8 @@ def main(argv=None) -> int:
     finally:
         run.stop()
         if worker is not None:
+            if node.busy:
+                run.log.info("stopping: %s interrupted", node.busy)
             worker.close()  # a fit in progress ends now: the training thread gets its error and stops
         with node.cv:
             node.cv.notify_all()
