@@ -35,3 +35,6 @@ main.add_command(bus_replay_cmd)
 from .receivers.cli import gnss_sim  # noqa: E402
 
 main.add_command(gnss_sim)
+from .keys_cli import keys_cmd  # noqa: E402
+
+main.add_command(keys_cmd)

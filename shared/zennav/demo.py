@@ -25,8 +25,10 @@ process and raises click.ClickException (exit code 1) with the tail of the servi
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
+import tempfile
 import threading
 import time
 from collections import Counter, deque
@@ -40,6 +42,7 @@ import click
 import numpy as np
 
 from .launch import Launcher, load_launch
+from .learn.signing import generate as generate_keys
 from .metrics import antenna_llh, evaluate, format_table, ned_errors, write_outputs
 from .nav.types import NS
 from .replay import ReplayResult, run_end_ns, run_replay
@@ -241,6 +244,12 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
     svc["trainer"].command = _with_options(svc["trainer"].command, {
         "--model": [settings.model], "--optimizer": [settings.optimizer], "--seed": [settings.seed],
         "--targets": [TARGET]})
+    # a throwaway parameter-set signing pair and a fresh version state: the run's sets are signed, v1, v2, ...
+    keys = Path(tempfile.mkdtemp(prefix="zennav-demo-keys-"))
+    private, public = generate_keys(keys)
+    svc["trainer"].env.update(ZENNAV_SIGNING_KEY=str(private), ZENNAV_STATE_DIR=str(keys / "state"))
+    if "predictor" in svc:
+        svc["predictor"].env.update(ZENNAV_VERIFY_KEY=str(public))
     for k in ("ZENNAV_LISTEN", "ZENNAV_ZENOH_CONFIG"):  # the set's own loopback endpoints and configs only
         os.environ.pop(k, None)
     log = out / "launch.log"
@@ -259,6 +268,7 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
             for s, h in handlers.items():
                 signal.signal(s, h)
             bus.close()
+            shutil.rmtree(keys, ignore_errors=True)
     if launcher.completed:
         return recording, collector
     if rc == 0 and not launcher.failed:

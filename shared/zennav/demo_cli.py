@@ -32,6 +32,7 @@ def demo(out, dataset, duration, outages, every, compensation, seed, launch_file
     over the bus (ins -> trainer -> predictor -> ins, in lockstep); a second ins without learning navigates the
     same stream. Prints the accuracy of both against the truth, what the learning loop did, and the largest
     difference from the same run in one process (`zennav replay DATASET --compensation ...`)."""
+    from .datasets.errors import DataError
     from .demo import DEMO_LAUNCH, DemoSpec, run_demo
     from .replay import parse_outage, parse_outage_every
     from .replay_cli import _setup_logging
@@ -48,4 +49,7 @@ def demo(out, dataset, duration, outages, every, compensation, seed, launch_file
     options = {"duration_s": float(duration or 600.0)} if sim else {}
     if sim and any(s + d > options["duration_s"] for s, d in windows):
         raise click.BadParameter(f"an outage ends after the {options['duration_s']:g} s drive", param_hint="--outage")
-    run_demo(out, DemoSpec(dataset, options, windows, periodic, compensation, seed), launch_file or DEMO_LAUNCH)
+    try:
+        run_demo(out, DemoSpec(dataset, options, windows, periodic, compensation, seed), launch_file or DEMO_LAUNCH)
+    except DataError as e:
+        raise click.ClickException(str(e)) from None

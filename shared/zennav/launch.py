@@ -11,6 +11,8 @@ Launch file (YAML)::
     mode: peer                       # ZENNAV_MODE of the services (peer | client: e.g. deploy/trainer.yaml)
     up_timeout_s: 60                 # how long to wait for everything to be alive
     stop_timeout_s: 10               # SIGTERM, then SIGKILL after this
+    keys: keys                       # {keys}: the parameter-set key directory (`zennav keys DIR`; ZENNAV_KEYS wins)
+    state: state                     # {state}: the services' state directory (ZENNAV_STATE_DIR wins)
     services:
       - name: router                 # the liveliness name awaited (default: name)
         command: [zennav, router, --listen, "{rendezvous}"]
@@ -22,8 +24,13 @@ Launch file (YAML)::
         exit_ok: false               # true: exiting with 0 is expected (ingest at the end of a stream)
 
 Commands: "zennav..." executables are taken from this interpreter's bin directory; "{python}" is this
-interpreter; "{rendezvous}" and "{vehicle}" are substituted. Every service gets ZENNAV_CONNECT={rendezvous},
+interpreter; "{rendezvous}", "{vehicle}", "{keys}" and "{state}" are substituted (relative paths: from the
+directory the launcher runs in). Every service gets ZENNAV_CONNECT={rendezvous},
 ZENNAV_VEHICLE and ZENNAV_MODE in its environment (explicit --connect/--listen in a command win).
+
+Services die with their launcher, even one killed with SIGKILL: each runs in its own session (a Ctrl-C in the
+terminal reaches the launcher only, which stops them in order) with the parent-death signal set to SIGTERM
+(zennav.pdeath, Linux), so no service is left running unsupervised.
 """
 from __future__ import annotations
 
@@ -37,6 +44,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
+
+from . import pdeath
 
 POLICIES = ("no", "on-failure", "always")
 
@@ -63,10 +72,17 @@ class LaunchSpec:
     up_timeout_s: float
     stop_timeout_s: float
     services: list
+    keys: str = "keys"
+    state: str = "state"
 
 
 def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
-    data = yaml.safe_load(Path(path).read_text())
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except yaml.YAMLError as e:
+        raise ValueError(f"{path}: not YAML: {' '.join(str(e).split())}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a launch file (a YAML map with rendezvous and services)")
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
     if not data.get("rendezvous"):
         raise ValueError(f"{path}: no rendezvous: give the router's endpoint, e.g. --rendezvous tcp/<router-ip>:7447")
@@ -93,11 +109,14 @@ def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
     return LaunchSpec(name=str(data.get("name", Path(path).stem)), vehicle=str(data.get("vehicle", "car")),
                       rendezvous=str(data["rendezvous"]),
                       mode=str(data.get("mode", "peer")), up_timeout_s=float(data.get("up_timeout_s", 60)),
-                      stop_timeout_s=float(data.get("stop_timeout_s", 10)), services=services)
+                      stop_timeout_s=float(data.get("stop_timeout_s", 10)), services=services,
+                      keys=os.environ.get("ZENNAV_KEYS") or str(data.get("keys", "keys")),
+                      state=os.environ.get("ZENNAV_STATE_DIR") or str(data.get("state", "state")))
 
 
 def _resolve(cmd: list, spec: LaunchSpec) -> list:
-    subst = {"python": sys.executable, "rendezvous": spec.rendezvous, "vehicle": spec.vehicle}
+    subst = {"python": sys.executable, "rendezvous": spec.rendezvous, "vehicle": spec.vehicle, "keys": spec.keys,
+             "state": spec.state}
     out = [c.format(**subst) for c in cmd]
     if out and out[0].startswith("zennav"):
         cand = Path(sys.executable).parent / out[0]
@@ -152,7 +171,7 @@ class Launcher:
     def start(self, c: Child) -> None:
         cmd = _resolve(c.spec.command, self.spec)
         c.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-                                  env=self._env(c.spec), start_new_session=True)
+                                  env=self._env(c.spec), start_new_session=True, preexec_fn=pdeath.preexec())
         c.started_at = time.monotonic()
         c.finished = False
         c.readers = [threading.Thread(target=self._pump, args=(c.spec.name, st), daemon=True)

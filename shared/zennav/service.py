@@ -26,6 +26,13 @@ log = logging.getLogger("zennav.service")
 LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(name)s: %(message)s"
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse whose errors are one line ("prog: error: ... (see --help)"), not the usage block."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def add_bus_args(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     g = p.add_argument_group("bus (zenoh)")
     g.add_argument("--vehicle", default=os.environ.get("ZENNAV_VEHICLE", "car"), help="key-space vehicle name")
@@ -58,11 +65,15 @@ class ServiceRunner:
         setup_logging(args.log_level)
         self.name = args.name or service
         self.log = logging.getLogger(f"zennav.{self.name}")
-        self.bus = Bus(self.name, args.vehicle, mode=args.mode, config=args.zenoh_config, connect=args.connect,
-                       listen=args.listen, token=False, serial=serial)
+        try:
+            self.bus = Bus(self.name, args.vehicle, mode=args.mode, config=args.zenoh_config, connect=args.connect,
+                           listen=args.listen, token=False, serial=serial)
+        except Exception as e:  # a bad config file or endpoint (zenoh raises its own error type): one line
+            raise SystemExit(f"zennav-{service}: cannot open the bus: {' '.join(str(e).split())[:400]}") from None
         self.keys = self.bus.keys
         self.state = "starting"
         self.detail = ""
+        self.describe: Callable[[], str] | None = None  # when set: the detail of every heartbeat (live progress)
         self.counters: Callable[[], dict] = dict
         self._stop = threading.Event()
         self._period = args.status_period
@@ -109,7 +120,8 @@ class ServiceRunner:
 
     def heartbeat(self) -> None:
         try:
-            self.bus.publish_status(self.state, self.detail, self.counters())
+            detail = self.describe() if self.describe is not None and self.state == "running" else self.detail
+            self.bus.publish_status(self.state, detail, self.counters())
         except Exception:
             self.log.exception("status publish failed")
 

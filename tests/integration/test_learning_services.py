@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 import pytest
-from zennav_harness import PY, Collector, Proc, free_port, wait_until
+from zennav_harness import PY, Collector, Proc, free_port, sign, wait_until
 
 from zennav import messages as M
 from zennav.learn import anfis_numpy, paramset
@@ -34,7 +34,8 @@ NAME = "anfis-drift"
 # ------------------------------------------------------------------------------------------------ helpers
 def make_set(version: int, seed: int, n_in: int = N_IN, n_rules: int = 4, rmse=(0.5, 0.7), name: str = NAME,
              nan: bool = False) -> tuple[dict, dict]:
-    """A random but valid ANFIS parameter set for the drift target: (paramset message, model_params message)."""
+    """A random but valid ANFIS parameter set for the drift target: (paramset message, model_params message signed
+    with the key the cluster's predictors trust)."""
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(64, n_in))
     arrays = anfis_numpy.cluster_rulebase(x, n_rules, seed=seed)
@@ -46,7 +47,7 @@ def make_set(version: int, seed: int, n_in: int = N_IN, n_rules: int = 4, rmse=(
     norm["x_min"], norm["x_max"] = np.full(n_in, -1e3), np.full(n_in, 1e3)
     ps = paramset.build(name, version, arrays, norm, {"target": "drift", "sigma": list(rmse)},
                         created_t_ns=time.time_ns())
-    return ps, M.model_params_msg(ps)
+    return ps, sign(M.model_params_msg(ps))
 
 
 def predict(ps: dict, x) -> np.ndarray:

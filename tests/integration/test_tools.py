@@ -110,8 +110,11 @@ def test_trainer_set_joins_an_edge_router_as_a_client(cluster):
                             f"tcp/127.0.0.1:{port}", "--vehicle", cluster.vehicle)
     wait_until(lambda: "all 1 services up" in launch.text(), 90, "launch: the trainer up")
     cluster.wait_alive(["trainer"], 20, launch)
-    m = re.search(r"started trainer \(pid (\d+)\): \S*zennav-trainer$", launch.text(), re.M)
+    m = re.search(r"started trainer \(pid (\d+)\): \S*zennav-trainer --signing-key (\S+) --state-dir (\S+)$",
+                  launch.text(), re.M)
     assert m, launch.text()
+    assert m.group(2) == f"{cluster.env['ZENNAV_KEYS']}/paramset-signing.pem"  # {keys}, {state}: ZENNAV_KEYS, ...
+    assert m.group(3) == f"{cluster.env['ZENNAV_STATE_DIR']}/trainer"
     env = open(f"/proc/{m.group(1)}/environ", "rb").read().split(b"\0")
     assert b"ZENNAV_MODE=client" in env and f"ZENNAV_CONNECT=tcp/127.0.0.1:{port}".encode() in env
     launch.p.send_signal(signal.SIGINT)

@@ -36,6 +36,27 @@ def json_lines(proc) -> list[dict]:
     return out
 
 
+_KEYS: dict[str, Path] = {}
+
+
+def dev_keys() -> tuple[Path, Path]:
+    """This test process's parameter-set signing key pair (private, public), made once (zennav.learn.signing)."""
+    if not _KEYS:
+        import tempfile
+
+        from zennav.learn.signing import generate
+
+        _KEYS["private"], _KEYS["public"] = generate(tempfile.mkdtemp(prefix="zennav-keys-"))
+    return _KEYS["private"], _KEYS["public"]
+
+
+def sign(msg: dict) -> dict:
+    """A model_params message signed with dev_keys() (the key every service of a Cluster trusts)."""
+    from zennav.learn.signing import Signer
+
+    return {**msg, "signature": Signer.from_file(dev_keys()[0]).sign(msg["checksum"])}
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -114,6 +135,10 @@ class Cluster:
         self.env = dict(os.environ, PYTHONUNBUFFERED="1", ZENNAV_LOG="INFO")
         for k in ("ZENNAV_CONNECT", "ZENNAV_LISTEN", "ZENNAV_MODE", "ZENNAV_ZENOH_CONFIG"):
             self.env.pop(k, None)
+        # trainers sign with the test process's key, predictors trust it; versions persist per test
+        private, public = dev_keys()
+        self.env.update(ZENNAV_SIGNING_KEY=str(private), ZENNAV_VERIFY_KEY=str(public), ZENNAV_KEYS=str(public.parent),
+                        ZENNAV_STATE_DIR=str(tmp / "state"))
 
     def bus_args(self) -> list:
         return ["--connect", self.endpoint, "--vehicle", self.vehicle]

@@ -56,9 +56,22 @@ def test_checksum_is_canonical():
     assert paramset.checksum(_msg(version=6)) != paramset.checksum(a)
 
 
-def test_rejections_have_distinct_reasons():
+@pytest.fixture(scope="module")
+def keys(tmp_path_factory):
+    """(Signer, Verifier) of a new pair, and a Verifier of another pair."""
+    from zennav.learn.signing import Signer, Verifier, generate
+
+    priv, pub = generate(tmp_path_factory.mktemp("keys"))
+    _, other = generate(tmp_path_factory.mktemp("other"))
+    return Signer.from_file(priv), Verifier.from_file(pub), Verifier.from_file(other)
+
+
+def test_rejections_have_distinct_reasons(keys):
+    signer, verifier, _ = keys
     good = _msg(version=5)
     paramset.validate(good, live_version=4)
+    sig = signer.sign(good["checksum"])
+    paramset.validate(good, live_version=4, verifier=verifier, signature=sig, max_version_step=1)
 
     tampered = copy.deepcopy(good)
     data = bytearray(tampered["arrays"]["c"]["data"])
@@ -77,6 +90,9 @@ def test_rejections_have_distinct_reasons():
         "schema": _reason({k: v for k, v in good.items() if k != "norm"}),
         "decode": _reason_decode(b"\xc1 not msgpack"),
         "invalid_value": _reason(_msg(a=-np.ones((3, 4)))),
+        "unsigned": _reason(good, verifier=verifier),
+        "bad_signature": _reason(good, verifier=verifier, signature=signer.sign(_msg(version=6)["checksum"])),
+        "version_ahead": _reason(good, live_version=3, max_version_step=1),
     }
     assert reasons == {k: k for k in reasons}
     assert set(reasons) == set(REASONS)
@@ -85,6 +101,30 @@ def test_rejections_have_distinct_reasons():
     assert _reason(good, name="other") == "schema"
     assert _reason(_msg(rules=np.full((4, 3), 7))) == "invalid_value"
     assert _reason(_msg(norm_changes={"x_min": np.full(3, 4.0)})) == "invalid_value"  # x_min > x_max
+
+
+def test_signature_binds_the_key_and_the_content(keys, tmp_path):
+    """Only the trusted key's signature of this very set verifies; a forged or reused one is bad_signature, with
+    a reason that says which; a set signed by an untrusted key names that key."""
+    from zennav.learn.signing import Signer, Verifier
+
+    signer, verifier, other = keys
+    good = _msg(version=5)
+    sig = signer.sign(good["checksum"])
+    assert verifier.check(good["checksum"], sig) == ""
+    assert "trusted key" in other.check(good["checksum"], sig)
+    head, kid, hexsig = sig.split(":")
+    flipped = f"{head}:{kid}:{hexsig[:-2]}{int(hexsig[-2:], 16) ^ 1:02x}"
+    assert verifier.check(good["checksum"], flipped) == "signature does not verify"
+    assert "not an ed25519" in verifier.check(good["checksum"], "hmac:00:00")
+    assert verifier.check(good["checksum"], f"{head}:{kid}:zz") == "signature is not hex"
+    # a key file that is not a key, or the wrong half: one line, ValueError
+    bad = tmp_path / "bad.pem"
+    bad.write_text("not a key")
+    for load, path in ((Signer.from_file, bad), (Verifier.from_file, bad), (Signer.from_file, tmp_path / "none")):
+        with pytest.raises(ValueError) as e:
+            load(path)
+        assert "\n" not in str(e.value)
 
 
 def _reason_decode(payload):

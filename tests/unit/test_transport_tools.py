@@ -60,7 +60,12 @@ def test_launch_files_in_deploy_parse():
     with pytest.raises(ValueError, match="no rendezvous"):
         load_launch(REPO / "deploy" / "trainer.yaml")
     tr = load_launch(REPO / "deploy" / "trainer.yaml", {"rendezvous": "tcp/10.0.0.2:7447"})
-    assert tr.mode == "client" and [s.command for s in tr.services] == [["zennav-trainer"]]
+    assert tr.mode == "client" and [s.command[0] for s in tr.services] == ["zennav-trainer"]
+    # sets signed, versions kept across restarts; the predictors trust the public half
+    assert {"--signing-key", "--state-dir"} <= set(tr.services[0].command)
+    for name in ("local.yaml", "edge.yaml"):
+        pred = next(s for s in load_launch(REPO / "deploy" / name).services if s.name == "predictor")
+        assert "--verify-key" in pred.command and "--allow-unsigned" not in pred.command
     assert tr.rendezvous == "tcp/10.0.0.2:7447"
 
 

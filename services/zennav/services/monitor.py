@@ -6,6 +6,9 @@ Wiring table
     queries    svc/*/status, nav/status, attitude, learn/model/*   latest values at start (late joiner)
     publishes  svc/<name>/status         its own heartbeat (when run as a service)
 
+Health per service (zennav.nodes.monitor: down, error, degraded with the reason, running) is judged here from
+liveliness, status age (--stale) and whether a service's work counter moves while its input flows (--stall).
+
 Drops are seen from the monitor: if the monitor itself falls behind by more than its ring capacity, the
 samples it skipped count as drops too.
 """
@@ -18,7 +21,7 @@ import sys
 import time
 
 from zennav.nodes.monitor import MonitorState, format_table
-from zennav.service import ServiceRunner, add_bus_args
+from zennav.service import ArgumentParser, ServiceRunner, add_bus_args
 
 
 def _query_latest(run, state: MonitorState, selectors) -> None:
@@ -32,11 +35,15 @@ def _query_latest(run, state: MonitorState, selectors) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="zennav-monitor", description="zennav monitor: live health of the key space")
+    p = ArgumentParser(prog="zennav-monitor", description="zennav monitor: live health of the key space")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--once", action="store_true", help="observe for --duration seconds, print once and exit")
     p.add_argument("--duration", type=float, default=2.0, help="observation time with --once [s]")
     p.add_argument("--interval", type=float, default=1.0, help="refresh period [s]")
+    p.add_argument("--stall", type=float, default=10.0, help="a live service whose input flows this long [s] while "
+                   "its work counter stands still is shown degraded")
+    p.add_argument("--stale", type=float, default=5.0, help="a live service without a status this long [s] is "
+                   "shown degraded")
     p.add_argument("--ring", type=int, default=65536, help="receive ring capacity")
     p.add_argument("--prometheus", type=int, default=None, metavar="PORT",
                    help="expose the snapshot as Prometheus metrics on http://--prometheus-addr:PORT/metrics")
@@ -53,7 +60,7 @@ def main(argv=None) -> int:
         args.name = f"monitor-{os.getpid()}"
     run = ServiceRunner("monitor", args)
     k = run.keys
-    state = MonitorState(k)
+    state = MonitorState(k, stall_s=args.stall, stale_s=args.stale)
     run.bus.subscribe(k.all(), state.on_sample, validate=False, channel="ring", capacity=args.ring, name="all")
     run.bus.watch_alive(state.on_alive)
     _query_latest(run, state, (k.svc_status(), k.nav_status(), k.attitude(), k.learn_model()))

@@ -22,6 +22,12 @@ array shape vs data length: codes decode_error, bad_shape, not_finite, ...), the
 zennav.learn.paramset.validate with the key's name, metrics.sigma: codes model_<reason>). A set equal to the live
 one (e.g. the late-joiner reply and the publication both arriving) is counted as a duplicate, not a rejection.
 
+Signatures (zennav.learn.signing): with --verify-key (default ZENNAV_VERIFY_KEY) every set must carry the
+trainer's Ed25519 signature of its checksum (reasons model_unsigned, model_bad_signature), and a version more
+than --max-version-step above the live one is refused (model_version_ahead): a set far ahead would block every
+legitimate set after it. Without a key the predictor does not start, unless --allow-unsigned (development only:
+no signature is checked, the status detail says UNSIGNED SETS ACCEPTED).
+
 Lockstep (--lockstep; a replay of a recording, e.g. the demo; not for live vehicles): a query is answered only
 with a set trained through at least its n_samples (metrics.samples_seen); the query thread waits for it up to
 --lockstep-timeout seconds, then counts late_model and answers with the live set (or refuses: no_model). It stops
@@ -37,18 +43,20 @@ it names, and no query waits for a validation (outside lockstep).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
 from zennav import messages as M
 from zennav.learn.settings import LearnSettings
+from zennav.learn.signing import Verifier
 from zennav.nodes.predictor import PredictorNode
-from zennav.service import ServiceRunner, add_bus_args
+from zennav.service import ArgumentParser, ServiceRunner, add_bus_args
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="zennav-predictor", description="zennav predictor service: live ANFIS "
-                                "parameter sets (numpy), validated hot swap, answers learn/query")
+    p = ArgumentParser(prog="zennav-predictor", description="zennav predictor service: live ANFIS "
+                       "parameter sets (numpy), validated hot swap, answers learn/query")
     p.add_argument("--queue", type=int, default=4096, help="query queue capacity (back-pressure beyond)")
     p.add_argument("--no-fetch", action="store_true", help="do not ask for the latest parameter sets at start")
     p.add_argument("--max-domain-excess", type=float, default=LearnSettings().max_domain_excess,
@@ -57,18 +65,39 @@ def build_parser() -> argparse.ArgumentParser:
                    "n_samples, waiting for it (a replay of a recording; not for live vehicles)")
     p.add_argument("--lockstep-timeout", type=float, default=120.0,
                    help="longest wait [s] for that set; then the query counts as late_model and gets the live set")
+    p.add_argument("--verify-key", default=os.environ.get("ZENNAV_VERIFY_KEY"),
+                   help="the trainer's Ed25519 public key (PEM, `zennav keys DIR`; default ZENNAV_VERIFY_KEY): "
+                        "only sets signed with its private key are taken")
+    p.add_argument("--allow-unsigned", action="store_true",
+                   help="development only: take sets without checking any signature (needed when no key is given)")
+    p.add_argument("--max-version-step", type=int, default=1000,
+                   help="refuse a set whose version is more than this above the live one")
     return add_bus_args(p)
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    verifier = None
+    if not args.allow_unsigned:
+        if not args.verify_key:
+            raise SystemExit("zennav-predictor: no --verify-key (the trainer's public key, `zennav keys DIR`); "
+                             "--allow-unsigned takes unsigned sets (development only)")
+        try:
+            verifier = Verifier.from_file(args.verify_key)
+        except ValueError as e:
+            raise SystemExit(f"zennav-predictor: {e}") from None
+    if args.max_version_step < 1:
+        raise SystemExit("zennav-predictor: --max-version-step must be >= 1")
     run = ServiceRunner("predictor", args, serial=False)  # queries must not wait for a set's validation
+    if verifier is None:
+        run.log.warning("--allow-unsigned: parameter sets are taken without a signature check (development only)")
     k = run.keys
     bus = run.bus
     out = bus.publisher(k.learn_correction())
     node = PredictorNode(out.put, run.log, bus_reject=bus.count_rejected, on_change=lambda d: setattr(run, "detail", d),
                          max_domain_excess=args.max_domain_excess,
-                         lockstep_timeout_s=args.lockstep_timeout if args.lockstep else 0.0)
+                         lockstep_timeout_s=args.lockstep_timeout if args.lockstep else 0.0, verifier=verifier,
+                         max_version_step=args.max_version_step)
     validator = M.Validator()
 
     def on_model(key, payload, recv_ns):  # raw bytes: bus-invalid sets are parameter-set rejections too

@@ -4,8 +4,9 @@ the same LearnSettings defaults, that the in-process loop of `zennav replay --co
 versioned parameter sets. --model anfis (default): ANFIS on the newest --window samples, premises by hybrid LSE +
 Fletcher-Reeves CG (--optimizer cg, seed 000) or particle swarm (--optimizer pso, seed 003). --model elman (seed
 002): an Elman network learns online from every sample, in order; its state is published once its training error
-is under its threshold. The only zennav process that imports torch; ANFIS trains on the GPU when torch sees one
-(--device cpu and --torch-threads 1 for sets equal, bit for bit, to the in-process loop's).
+is under its threshold. ANFIS fits run in the trainer's fit worker (zennav.learn.fit_worker: a child process, the
+only zennav process that imports torch), on the GPU when torch sees one (--device cpu and --torch-threads 1 for
+sets equal, bit for bit, to the in-process loop's).
 
 Wiring table
     subscribes <base>/learn/samples        learn_sample from the ins (variants outside --targets, and samples of the
@@ -25,9 +26,19 @@ n samples (the newest --window of them). Fits run on their own thread, so sample
 waits until its n samples are in (samples and queries travel on different keys). Each set's metrics carry
 samples_seen (n), the target, the method, epochs, the training RMSE, sigma (the predictor's 1-sigma per output).
 
-Versions: one integer per model name, +1 per set. At start the trainer asks for the latest set of each of its
-names on the bus and continues above it (else from --first-version), so a restarted trainer's sets are newer than
-those a predictor may still hold, as long as some process still serves them.
+Versions: one integer per model name, +1 per set, persisted in --state-dir (default ZENNAV_STATE_DIR;
+versions.json, written before each set is published), so a restarted trainer continues above its last set and the
+predictor takes its sets (a version persisted, not time-based: the numbering stays 1, 2, 3, ... reproducible in
+lockstep, and a restart never jumps past the predictor's --max-version-step). At start the trainer also asks for
+the latest set of each of its names on the bus and continues above the highest (else from --first-version). The
+held samples are not persisted: a restarted trainer learns again from the samples that arrive.
+
+Signatures: every set carries an Ed25519 signature of its checksum by --signing-key (default ZENNAV_SIGNING_KEY;
+`zennav keys DIR` makes a pair); the predictor holds the public key. Without a key the trainer does not start,
+unless --unsigned (development only).
+
+Stopping: SIGTERM or SIGINT stops the trainer within seconds even mid-fit: the fit worker is terminated (the fit
+is lost; nothing is published), the training thread ends, the session closes, exit code 0.
 
 Remote deployment: run it as a zenoh client of the edge router (``--mode client --connect tcp/<edge>:7447``,
 deploy/zenoh-client.json5: waits for the router, reconnects for ever). When the link drops the trainer keeps
@@ -38,14 +49,17 @@ model, so a set trained during the cut is not lost; the next fit then follows th
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import threading
 from typing import TYPE_CHECKING
 
+from zennav.learn.fit_worker import FitWorker
 from zennav.learn.settings import MODELS, OPTIMIZERS, LearnSettings
+from zennav.learn.signing import Signer
 from zennav.nav.learning import TARGETS
-from zennav.nodes.trainer import TrainerNode
-from zennav.service import ServiceRunner, add_bus_args
+from zennav.nodes.trainer import TrainerNode, VersionFile
+from zennav.service import ArgumentParser, ServiceRunner, add_bus_args
 
 if TYPE_CHECKING:
     from zennav.bus import Publisher
@@ -55,9 +69,9 @@ DEFAULTS = LearnSettings()
 
 def build_parser() -> argparse.ArgumentParser:
     d = DEFAULTS
-    p = argparse.ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS (premises by "
-                                "hybrid LSE + Fletcher-Reeves CG or PSO) or online Elman on the ins's samples, "
-                                "versioned parameter sets; defaults: zennav.learn.settings.LearnSettings")
+    p = ArgumentParser(prog="zennav-trainer", description="zennav trainer service: ANFIS (premises by "
+                       "hybrid LSE + Fletcher-Reeves CG or PSO) or online Elman on the ins's samples, "
+                       "versioned parameter sets; defaults: zennav.learn.settings.LearnSettings")
     p.add_argument("--model", default=d.model, choices=MODELS, help="anfis: fitted on the newest samples; "
                    "elman: learns online from every sample (seed 002)")
     p.add_argument("--optimizer", default=d.optimizer, choices=OPTIMIZERS,
@@ -81,6 +95,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="torch CPU threads during a fit (1: the in-process loop's sets, bit for bit; 0: torch's "
                         "default)")
     p.add_argument("--first-version", type=int, default=1, help="version of the first set if none is found on the bus")
+    p.add_argument("--signing-key", default=os.environ.get("ZENNAV_SIGNING_KEY"),
+                   help="Ed25519 private key (PEM, `zennav keys DIR`; default ZENNAV_SIGNING_KEY) that signs every set")
+    p.add_argument("--unsigned", action="store_true", help="development only: publish sets without a signature")
+    p.add_argument("--state-dir", default=os.environ.get("ZENNAV_STATE_DIR"),
+                   help="directory of the last published versions (default ZENNAV_STATE_DIR): they survive a restart")
     p.add_argument("--link-poll", type=float, default=0.5, help="period [s] of the link (router/peer) check")
     p.add_argument("--close-timeout", type=float, default=3.0, help="longest wait [s] for the session to close")
     return add_bus_args(p)
@@ -90,18 +109,30 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     targets = [t.strip() for t in args.targets.split(",") if t.strip()]
     if not targets or not set(targets) <= set(TARGETS):
-        raise SystemExit(f"--targets: choose from {TARGETS}")
+        raise SystemExit(f"zennav-trainer: --targets: choose from {TARGETS}")
     try:
         settings = LearnSettings(model=args.model, optimizer=args.optimizer, window=args.window,
                                  min_samples=args.min_samples, retrain_samples=args.retrain_samples,
                                  n_rules=args.n_rules, max_epochs=args.max_epochs, seed=args.seed,
                                  torch_threads=args.torch_threads)
-    except ValueError as e:
+        signer = None if args.unsigned else Signer.from_file(args.signing_key) if args.signing_key else None
+        versions = VersionFile(args.state_dir) if args.state_dir else None
+    except (ValueError, OSError) as e:
         raise SystemExit(f"zennav-trainer: {e}") from None
+    if signer is None and not args.unsigned:
+        raise SystemExit("zennav-trainer: no --signing-key (`zennav keys DIR` makes one); --unsigned publishes "
+                         "unsigned sets (development only)")
     run = ServiceRunner("trainer", args, serial=False)
-    from zennav.learn.anfis_torch import default_device  # torch: this process only
-
-    device = args.device or str(default_device())
+    if signer is None:
+        run.log.warning("--unsigned: parameter sets are published without a signature (development only)")
+    if versions is None:
+        run.log.warning("no --state-dir: versions continue only above a set still served on the bus")
+    worker = FitWorker(settings.torch_threads) if settings.model == "anfis" else None
+    try:  # the worker starts now, from the main thread (its parent-death signal follows that thread)
+        device = worker.device() if worker else "cpu"
+    except RuntimeError as e:
+        return run.fail(f"fit worker: {e}")
+    device = args.device or device
     k = run.keys
     bus = run.bus
     pubs: dict[str, Publisher] = {}
@@ -115,12 +146,13 @@ def main(argv=None) -> int:
             p.put(msg)
 
     node = TrainerNode(publish, run.log, targets, settings, prefix=args.prefix, device=device,
-                       first_version=args.first_version)
+                       first_version=args.first_version, signer=signer, versions=versions, fitter=worker)
     for t, name in node.names.items():  # continue the version numbering of a set already on the bus
         for _key, msg in bus.get_latest(k.learn_model(name), timeout=2.0):
             if msg["name"] == name:
                 node.seen_version(t, msg["version"])
     link = {"up": True, "losses": 0, "republished": 0}
+    run.describe = node.detail  # its sets, and "fitting ..." while a fit runs
     run.counters = lambda: {**node.counters(), "link_losses": link["losses"], "republished": link["republished"]}
     bus.subscribe(k.learn_samples(), lambda key, msg, recv_ns: node.on_sample(msg), channel="fifo", capacity=8192,
                   name="samples")
@@ -151,8 +183,9 @@ def main(argv=None) -> int:
     def train_loop() -> None:
         while not run.stopping:
             for t in node.wait_due():
+                if run.stopping:
+                    break
                 node.train(t)
-                run.detail = node.detail()
                 run.heartbeat()  # the progress now: a lockstep predictor waits on it (zennav.services.predictor)
 
     link["up"] = connected()
@@ -164,8 +197,13 @@ def main(argv=None) -> int:
         run.wait()
     finally:
         run.stop()
+        if worker is not None:
+            if node.busy:
+                run.log.info("stopping: %s interrupted", node.busy)
+            worker.close()  # a fit in progress ends now: the training thread gets its error and stops
         with node.cv:
             node.cv.notify_all()
+        threads[1].join(args.close_timeout)
         # a client whose router is unreachable can block in the zenoh session's close (it is reconnecting): bound it
         closer = threading.Thread(target=run.close, name="zennav-close", daemon=True)
         closer.start()

@@ -13,7 +13,8 @@ Models (settings.model):
   hybrid LSE + Fletcher-Reeves CG premises (optimizer cg, seed 000) or PSO premises (optimizer pso, seed 003; the
   swarm of zennav.learn.pso with a constant inertia 0.7298 and c1 = c2 = 1.49618, Clerc and Kennedy, IEEE TEC
   6(1) 2002; the seed gives the PSO update but no coefficient values). 1-sigma: the residuals on the newest
-  quarter of the samples of a fit on the rest (zennav.learn.sigma). torch is imported only inside the fit.
+  quarter of the samples of a fit on the rest (zennav.learn.sigma). torch is imported only inside the fit, or not
+  at all with a ``fitter`` (the trainer's zennav.learn.fit_worker.FitWorker: the same fit in a child process).
 - elman (seed 002): ElmanOnline learns every sample in order; its set at n is its state after n samples (weights,
   context, normalisation, the range of the learned features, 1-sigma of its free-running copies); no set while
   its training error is above its threshold.
@@ -119,10 +120,11 @@ class Learner:
     from one thread (e.g. the bus's), ``due`` / ``fit`` from another (e.g. a training thread) is safe; ``fit``
     runs without the lock, so samples keep arriving while it trains."""
 
-    def __init__(self, target: str, settings: LearnSettings, name: str | None = None, device=None):
+    def __init__(self, target: str, settings: LearnSettings, name: str | None = None, device=None, fitter=None):
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}")
         self.target, self.s, self.device = target, settings, device
+        self.fitter = fitter  # None: fit_anfis_sigma in this process (torch threads set per fit)
         self.name = name or f"{settings.model}-{target}"
         # LearnSettings.__post_init__ resolves window and min_samples (None: the model's default)
         assert settings.window is not None and settings.min_samples is not None
@@ -225,27 +227,33 @@ class Learner:
         arrays = {k: v.copy() for k, v in net.arrays().items()}
         return self._build(n, version, arrays, comp.norm(), metrics, "elman")
 
-    def _anfis_set(self, n: int, version: int) -> dict | None:
+    def _fit_here(self, x, y, *, config: dict, **kw):
+        """fit_anfis_sigma in this process (config: TrainConfig's fields), torch on settings.torch_threads threads
+        during the fit."""
         import torch  # the fit only (module docstring)
 
         from .anfis_torch import TrainConfig, fit_anfis_sigma
 
-        rows = list(self._rows)
-        t_ns = np.array([r[0] for r in rows], dtype=np.int64)
-        x, y = np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
         threads = torch.get_num_threads()
         torch.set_num_threads(self.s.torch_threads or threads)
         try:
-            fit = fit_anfis_sigma(x, y, max_rules=self.s.n_rules, device=self.device, t_ns=t_ns,
-                                  answer_period_s=ANSWER_PERIOD_S[self.target],
-                                  config=TrainConfig(method=self.s.method, max_epochs=self.s.max_epochs,
-                                                     seed=self.s.seed))
+            return fit_anfis_sigma(x, y, config=TrainConfig(**config), **kw)
+        finally:
+            torch.set_num_threads(threads)
+
+    def _anfis_set(self, n: int, version: int) -> dict | None:
+        rows = list(self._rows)
+        t_ns = np.array([r[0] for r in rows], dtype=np.int64)
+        x, y = np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
+        try:
+            fit = (self.fitter or self._fit_here)(
+                x, y, max_rules=self.s.n_rules, device=self.device, t_ns=t_ns,
+                answer_period_s=ANSWER_PERIOD_S[self.target],
+                config={"method": self.s.method, "max_epochs": self.s.max_epochs, "seed": self.s.seed})
         except Exception as e:  # a degenerate window must not stop the learner: no set, counted, reason kept
             self.counts["fit_errors"] += 1
             self.last_error = f"{type(e).__name__}: {e}"[:300]
             return None
-        finally:
-            torch.set_num_threads(threads)
         metrics = {**fit.metrics, "samples": int(len(x)), "t_first_ns": int(t_ns.min()), "t_last_ns": int(t_ns.max()),
                    "device": str(self.device or "cpu"), "n_rules": int(len(fit.arrays["rules"]))}
         return self._build(n, version, fit.arrays, fit.norm, metrics, "anfis")

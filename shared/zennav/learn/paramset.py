@@ -9,6 +9,8 @@ Message (msgpack-friendly dict):
   metrics {str: int | float | str | list of numbers}, checksum "sha256:<hex>".
 Each array is {"dtype": "<f8" | "<i8", "shape": [...], "data": bytes (C order)}.
 The checksum is the SHA-256 of the msgpack encoding of every other field with map keys sorted at every level.
+A signature (zennav.learn.signing: Ed25519 over the checksum) travels beside the set, not in it (the wire
+message's signature field); validate() checks it when given a verifier.
 validate() returns a read-only ParamSet or raises ParamSetRejected whose .reason is one of REASONS.
 """
 from __future__ import annotations
@@ -19,7 +21,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import numpy as np
@@ -27,10 +29,14 @@ import numpy as np
 from . import anfis_numpy, elman
 from .anfis_numpy import NORM_NAMES
 
+if TYPE_CHECKING:
+    from .signing import Verifier
+
 SCHEMA = "zennav.paramset/2"
 KINDS = {"anfis": anfis_numpy.ARRAY_NAMES, "elman": elman.ARRAY_NAMES}  # kind -> its array names
 INT_ARRAYS = ("rules",)
-REASONS = ("decode", "schema", "checksum", "shape", "non_finite", "invalid_value", "stale_version")
+REASONS = ("decode", "schema", "checksum", "unsigned", "bad_signature", "shape", "non_finite", "invalid_value",
+           "stale_version", "version_ahead")
 _FIELDS = {"schema": str, "kind": str, "name": str, "version": int, "created_t_ns": int, "norm": dict,
            "arrays": dict, "metrics": dict, "checksum": str}
 _DTYPES = {"<f8": np.float64, "<i8": np.int64}
@@ -205,15 +211,23 @@ def _check_shapes(kind, arrays, norm, n_in, n_out) -> None:
 
 
 def validate(msg: Mapping, *, live_version: int | None = None, n_in: int | None = None,
-             n_out: int | None = None, name: str | None = None) -> ParamSet:
-    """Check schema, checksum, shapes (against n_in/n_out when given), finiteness, value ranges and that
-    the version is newer than live_version, in that order; the first failure raises ParamSetRejected."""
+             n_out: int | None = None, name: str | None = None, verifier: Verifier | None = None,
+             signature: str | None = None, max_version_step: int | None = None) -> ParamSet:
+    """Check schema, checksum, the signature (with a verifier: unsigned, bad_signature), shapes (against
+    n_in/n_out when given), finiteness, value ranges and that the version is newer than live_version and at most
+    max_version_step above it, in that order; the first failure raises ParamSetRejected."""
     _check_schema(msg)
     if name is not None and msg["name"] != name:
         raise ParamSetRejected("schema", f"name {msg['name']!r} is not {name!r}")
     expected = checksum(msg)
     if msg["checksum"] != expected:
         raise ParamSetRejected("checksum", f"{msg['checksum']!r} != computed {expected!r}")
+    if verifier is not None:
+        if not signature:
+            raise ParamSetRejected("unsigned", f"no signature; sets must be signed by key {verifier.key_id}")
+        why = verifier.check(expected, str(signature))
+        if why:
+            raise ParamSetRejected("bad_signature", why)
     kind = msg["kind"]
     arrays = {k: _decode_array(msg["arrays"][k]) for k in KINDS[kind]}
     norm = {k: _decode_array(msg["norm"][k]) for k in NORM_NAMES}
@@ -230,6 +244,9 @@ def validate(msg: Mapping, *, live_version: int | None = None, n_in: int | None 
         raise ParamSetRejected("invalid_value", "norm.x_min must be <= norm.x_max")
     if live_version is not None and msg["version"] <= live_version:
         raise ParamSetRejected("stale_version", f"version {msg['version']} is not above live {live_version}")
+    if live_version is not None and max_version_step is not None and msg["version"] > live_version + max_version_step:
+        raise ParamSetRejected("version_ahead", f"version {msg['version']} is more than {max_version_step} above "
+                                                f"live {live_version}")
     if kind == "elman" and not (isinstance(msg["metrics"].get("context_gain"), float)
                                 and 0.0 <= msg["metrics"]["context_gain"] < 1.0):
         raise ParamSetRejected("invalid_value", "metrics.context_gain must be a float in [0, 1)")

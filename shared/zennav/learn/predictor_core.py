@@ -1,9 +1,12 @@
 """The predictor core: transport-free, numpy only (never imports torch). Used by the predictor service and by the
 in-process loop (zennav.learn.loop), so both validate, swap and answer the same way.
 
-``offer(name, msg)`` validates a parameter set (zennav.learn.paramset message) and swaps it in: the target variant
-in metrics.target, paramset.validate (schema, name, checksum, shapes against the target's feature and output
-counts, finite values, ranges, a version newer than the live one), a finite positive metrics.sigma per output.
+``offer(name, msg, signature)`` validates a parameter set (zennav.learn.paramset message) and swaps it in: the
+target variant in metrics.target, paramset.validate (schema, name, checksum, the trainer's Ed25519 signature when
+the core has a verifier (zennav.learn.signing; reasons unsigned, bad_signature), shapes against the target's
+feature and output counts, finite values, ranges, a version newer than the live one and at most max_version_step
+above it (version_ahead: a set far ahead would block every legitimate set after it)), a finite positive
+metrics.sigma per output.
 A set equal to the live one (same version and checksum) is a duplicate, not a rejection. Rejections are counted
 per reason (model_<paramset reason>, model_schema, model_invalid_value) and the live set stays.
 
@@ -32,6 +35,7 @@ import numpy as np
 
 from ..nav.learning import FEATURES, OUTPUTS
 from . import anfis_numpy, elman, paramset
+from .signing import Verifier
 
 REFUSALS = ("no_model", "bad_features", "off_domain", "nonfinite")
 
@@ -66,8 +70,11 @@ class PredictorCore:
     """Live sets per target, their validation and swap, and the answers (module docstring). offer() may run
     concurrently with answer() (one writer thread at a time)."""
 
-    def __init__(self, max_domain_excess: float = 0.5):
+    def __init__(self, max_domain_excess: float = 0.5, verifier: Verifier | None = None,
+                 max_version_step: int | None = None):
         self.max_domain_excess = float(max_domain_excess)
+        self.verifier = verifier  # None: signatures are not checked (the in-process loop; --allow-unsigned)
+        self.max_version_step = max_version_step
         self.live: dict[str, LiveModel] = {}
         self._cv = threading.Condition()  # writers; lockstep answers wait on it for a newer set
         self.sets: Counter[str] = Counter()  # received, accepted, duplicate, rejected
@@ -85,9 +92,9 @@ class PredictorCore:
             self.rejected[reason.split(":", 1)[0]] += 1
             self.last_rejection = f"{name}: {reason}"[:300]
 
-    def offer(self, name: str, msg: Mapping) -> tuple[LiveModel | None, str]:
-        """Validate a paramset message published under name and swap it in. Returns (the new live model, '') or
-        (None, 'duplicate') or (None, 'code: detail') when rejected (counted)."""
+    def offer(self, name: str, msg: Mapping, signature: str | None = None) -> tuple[LiveModel | None, str]:
+        """Validate a paramset message published under name (with its signature) and swap it in. Returns (the new
+        live model, '') or (None, 'duplicate') or (None, 'code: detail') when rejected (counted)."""
         with self._cv:
             metrics = msg.get("metrics")
             if not isinstance(metrics, dict):
@@ -104,7 +111,8 @@ class PredictorCore:
             n_out = len(OUTPUTS[target])
             try:
                 ps = paramset.validate(msg, live_version=None if cur is None else cur.version,
-                                       n_in=len(FEATURES[target]), n_out=n_out, name=name)
+                                       n_in=len(FEATURES[target]), n_out=n_out, name=name, verifier=self.verifier,
+                                       signature=signature, max_version_step=self.max_version_step)
             except paramset.ParamSetRejected as e:
                 return self._reject(name, f"model_{e.reason}: {e.detail}")
             except Exception as e:  # a map validate cannot read

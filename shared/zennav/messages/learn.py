@@ -42,9 +42,10 @@ define("model_params", 1, "Versioned parameter set: name, version, kind, created
        "{key: {shape, data[, dtype]}} (or {key: floats}), arrays {key: {shape, data[, dtype]}}, metrics, checksum. "
        "format (optional) names the parameter-set format; with format 'zennav.paramset/2' (model_params_msg / "
        "paramset_of) the message is zennav.learn.paramset's set with each array's bytes as a number list, and "
-       "checksum is paramset.checksum of that set, verified end to end; otherwise params_checksum.",
+       "checksum is paramset.checksum of that set, verified end to end; otherwise params_checksum. signature "
+       "(optional, added compatibly): the trainer's zennav.learn.signing signature of the checksum.",
        check=check_model_params, name=STR, version=INT, kind=STR, created_t_ns=INT, norm=MAP, arrays=MAP,
-       metrics=MAP, checksum=STR, format=OPT(STR))
+       metrics=MAP, checksum=STR, format=OPT(STR), signature=OPT(STR))
 define("correction", 1, "Predicted INS error: kind (the learn_query target, or e.g. 'pos_ned' [m]), value, 1-sigma "
        "std, model name and version used; t_ns the time of the query answered; query_src/query_seq (optional) "
        "the header of the learn_query answered. refused (optional, added compatibly): the predictor's reason for "
@@ -102,9 +103,10 @@ def refusal_msg(query: dict, reason: str) -> dict:
                 query_src=query["src"], query_seq=int(query["seq"]), refused=str(reason))
 
 
-def model_params_msg(ps: dict) -> dict:
+def model_params_msg(ps: dict, signature: str | None = None) -> dict:
     """A parameter set of zennav.learn.paramset (build()) -> model_params message: the same fields, each array's
-    little-endian bytes as a number list (float64 -> float, int64 -> int: exact), the set's own checksum.
+    little-endian bytes as a number list (float64 -> float, int64 -> int: exact), the set's own checksum, its
+    signature (zennav.learn.signing) when given.
     paramset_of() is the inverse, byte for byte, so the predictor verifies the trainer's checksum."""
     def wire(enc: dict) -> dict:
         if enc["dtype"] not in _PS_DTYPES:
@@ -116,7 +118,7 @@ def model_params_msg(ps: dict) -> dict:
                 created_t_ns=int(ps["created_t_ns"]), norm={k: wire(v) for k, v in ps["norm"].items()},
                 arrays={k: wire(v) for k, v in ps["arrays"].items()}, metrics=pyval(dict(ps["metrics"])),
                 checksum=ps["checksum"], format=PARAMSET_FORMAT if ps.get("schema") == PARAMSET_FORMAT
-                else str(ps.get("schema")))
+                else str(ps.get("schema")), **({} if signature is None else {"signature": str(signature)}))
 
 
 def paramset_of(msg: dict) -> dict:

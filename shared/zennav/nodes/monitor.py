@@ -10,6 +10,12 @@ source; attitude (roll/pitch/yaw, gyro bias, rejection weight, whether the earth
 applied); the live model version per model name. A second ins publishing under a nav prefix
 (``zennav-ins --nav-prefix plain``: <base>/nav/plain/...) is kept apart: its status under ``navs[prefix]``, its
 aid sources as '<prefix>/<source>'.
+
+Health (``services[s]["health"]`` and ``["why"]``), judged here from what the monitor sees, not from what a service
+says of itself: "down" (no liveliness token), "error" (its state), "degraded" when alive but not progressing:
+no status for ``stale_s`` (a hung process keeps its token until the session's lease ends), or its input flowing
+on the bus for ``stall_s`` while the counter of its work did not move (PROGRESS: an ins not joined to the live
+stream, or stalled; a trainer not taking samples; a predictor not answering), else "running".
 """
 from __future__ import annotations
 
@@ -21,6 +27,12 @@ from collections import Counter, deque
 from .. import messages as M
 
 DEG_PER_H = 180.0 / math.pi * 3600.0  # [deg/h] per [rad/s]
+# what feeds a service (key prefixes under the vehicle's base) and the status counters of its work (exact name, or
+# a prefix ending in "_": their sum); a service is judged by the first rule whose counters it publishes
+PROGRESS = ((("sensor/imu",), ("imu",)),  # ins (any nav prefix), attitude: IMU samples processed
+            (("learn/samples",), ("received_",)),  # trainer: samples taken per target
+            (("learn/query",), ("queries_",)))  # predictor: queries answered or refused
+NOT_JOINED = ("drop_no_stream", "drop_foreign_source")  # an ins's samples dropped as not of its stream
 
 
 class KeyStats:
@@ -50,11 +62,24 @@ def _pct(values, q):
     return s[min(len(s) - 1, int(round(q / 100.0 * (len(s) - 1))))]
 
 
-class MonitorState:
-    """Everything the monitor knows; fed from the bus workers, read by the reporter (one lock)."""
+def _progress(counters: dict) -> tuple[tuple[str, ...], int, int] | None:
+    """(input key prefixes, work done, not-joined drops) of a service's status counters by PROGRESS, or None."""
+    for inputs, names in PROGRESS:
+        hits = [v for k, v in counters.items() for n in names
+                if (k.startswith(n) if n.endswith("_") else k == n) and isinstance(v, (int, float))]
+        if hits:
+            return inputs, int(sum(hits)), int(sum(counters.get(k, 0) for k in NOT_JOINED))
+    return None
 
-    def __init__(self, keys: M.Keys):
+
+class MonitorState:
+    """Everything the monitor knows; fed from the bus workers, read by the reporter (one lock). stall_s, stale_s:
+    the health rules (module docstring) [s]."""
+
+    def __init__(self, keys: M.Keys, stall_s: float = 10.0, stale_s: float = 5.0):
         self.keys = keys
+        self.stall_s, self.stale_s = float(stall_s), float(stale_s)
+        self.progress: dict[str, deque] = {}  # service -> (receive wall time [ns], work done, not-joined drops)
         self.lock = threading.Lock()
         self.validator = M.Validator()
         self.per_key: dict[str, KeyStats] = {}
@@ -91,16 +116,22 @@ class MonitorState:
                 elif seq < nxt:
                     ks.dups += 1
             ks.next_seq[src] = max(seq + 1, nxt or 0)
-            self._content(key, msg)
+            self._content(key, msg, recv_ns)
 
-    def _content(self, key: str, msg: dict) -> None:
+    def _content(self, key: str, msg: dict, recv_ns: int) -> None:
         schema = msg["schema"]
         prefix = self.keys.nav_prefix_of(key)
         nav = self.navs.setdefault(prefix, {}) if prefix else self.nav
         if schema == "service_status":
             self.services[msg["service"]] = {"state": msg["state"], "detail": msg["detail"],
                                              "counters": msg["counters"], "rejected": msg["rejected"],
-                                             "wall_ns": msg["t_ns"]}
+                                             "wall_ns": msg["t_ns"], "recv_ns": recv_ns}
+            prog = _progress(msg["counters"])
+            if prog is not None:
+                hist = self.progress.setdefault(msg["service"], deque())
+                hist.append((recv_ns, prog[1], prog[2]))
+                while len(hist) > 2 and hist[1][0] < recv_ns - 2 * self.stall_s * 1e9:
+                    hist.popleft()  # keep one entry older than the stall window
         elif schema == "nav_status":
             keep = {k: v for k, v in nav.items() if k.startswith("solution_")}
             nav.clear()
@@ -146,11 +177,37 @@ class MonitorState:
         elif schema == "correction":
             self.correction = {"t_ns": msg["t_ns"], "model": msg["model"], "version": msg["version"]}
 
+    def health(self, service: str, alive: bool, st: dict, now_ns: int) -> tuple[str, str]:
+        """(health, why) of one service (module docstring); called with the lock held."""
+        if not alive:
+            return "down", "no liveliness token"
+        if st.get("state") == "error":
+            return "error", st.get("detail") or ""
+        if st and (age := (now_ns - st["recv_ns"]) / 1e9) > self.stale_s:  # this monitor's clock only
+            return "degraded", f"no status for {age:.0f} s"
+        prog = _progress(st.get("counters", {}))
+        hist = self.progress.get(service)
+        if prog is None or not hist:
+            return ("running" if st else "unknown"), ""
+        t0 = now_ns - self.stall_s * 1e9
+        old = next((h for h in reversed(hist) if h[0] <= t0), None)
+        fed = [k for k, ks in self.per_key.items() if ks.last_recv_ns >= t0
+               and any(self.keys.rel(k).startswith(p) for p in prog[0])]
+        if old is None or not fed or hist[-1][1] != old[1]:
+            return "running", ""
+        dropped = hist[-1][2] - old[2]
+        if dropped > 0:
+            return "degraded", (f"not joined: {dropped} samples dropped as not its stream in {self.stall_s:g} s, "
+                                f"none processed")
+        return "degraded", f"not progressing: {', '.join(self.keys.rel(k) for k in fed)} flowing, work counter " \
+                           f"stuck at {hist[-1][1]} for {self.stall_s:g} s"
+
     def on_alive(self, service: str, alive: bool) -> None:
         with self.lock:
             self.alive[service] = alive
 
-    def snapshot(self) -> dict:
+    def snapshot(self, now_ns: int | None = None) -> dict:
+        """Everything, with the health of each service as of now_ns (wall clock [ns], default now)."""
         now = time.monotonic()
         with self.lock:
             dt = max(now - self.t_rate, 1e-6)
@@ -166,12 +223,15 @@ class MonitorState:
                              "drops": ks.drops, "duplicates": ks.dups, "rejected": dict(ks.rejected)}
             names = set(self.alive) | set(self.services)
             services = {}
+            now_ns = time.time_ns() if now_ns is None else now_ns
             for s in sorted(names):
                 st = self.services.get(s, {})
-                services[s] = {"alive": bool(self.alive.get(s, False)), "state": st.get("state"),
+                health, why = self.health(s, bool(self.alive.get(s, False)), st, now_ns)
+                services[s] = {"alive": bool(self.alive.get(s, False)), "health": health, "why": why,
+                               "state": st.get("state"),
                                "detail": st.get("detail"), "rejected": st.get("rejected", {}),
                                "counters": st.get("counters", {}),
-                               "status_age_s": _r((time.time_ns() - st["wall_ns"]) / 1e9) if st else None}
+                               "status_age_s": _r((now_ns - st["recv_ns"]) / 1e9) if st else None}
             aid = {src: {"count": a["count"], "fused": a["fused"], "rejected": dict(a["rejected"]),
                          "faults": dict(a["faults"]),
                          "last_test_ratio": _r(a.get("last_test_ratio")),
@@ -197,8 +257,8 @@ def format_table(snap: dict) -> str:
              "", "SERVICES"]
     for s, d in snap["services"].items():
         rej = sum(d["rejected"].values()) if d["rejected"] else 0
-        lines.append(f"  {s:<12} {'UP  ' if d['alive'] else 'DOWN'} {d['state'] or '-':<16} "
-                     f"rejected {rej:<6} {d['detail'] or ''}"[:160])
+        lines.append(f"  {s:<12} {'UP  ' if d['alive'] else 'DOWN'} {d['health']:<9} {d['state'] or '-':<10} "
+                     f"rejected {rej:<6} {d['why'] or d['detail'] or ''}"[:160])
     nav = snap["nav"]
     if nav:
         lines += ["", f"NAV  gnss {nav.get('gnss_state')}  imu {nav.get('imu_count')}  gnss {nav.get('gnss_count')}  "

@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import messages as M
 from ..learn.predictor_core import PredictorCore
+from ..learn.signing import Verifier
 from ..messages.learn import refusal_msg
 from ..nav.learning import FEATURES
 
@@ -26,10 +27,11 @@ class PredictorNode:
     go to ``publish(msg)``. on_model may run concurrently with on_query (see the module docstring)."""
 
     def __init__(self, publish, log, bus_reject=None, on_change=None, max_domain_excess: float = 0.5,
-                 lockstep_timeout_s: float = 0.0):
+                 lockstep_timeout_s: float = 0.0, verifier: Verifier | None = None,
+                 max_version_step: int | None = None):
         self.publish = publish
         self.log = log
-        self.core = PredictorCore(max_domain_excess)
+        self.core = PredictorCore(max_domain_excess, verifier, max_version_step)
         self.wait_s = float(lockstep_timeout_s)  # > 0: lockstep
         self.bus_reject = bus_reject or (lambda key, reason: None)
         self.on_change = on_change or (lambda detail: None)
@@ -65,7 +67,7 @@ class PredictorNode:
             self.core.count_rejection(name, f"model_schema: {type(e).__name__}: {e}")
             self._rejected(key, f"model_schema: {type(e).__name__}: {e}", False)
             return False
-        new, reason = self.core.offer(name, ps)
+        new, reason = self.core.offer(name, ps, msg.get("signature"))
         if new is None:
             if reason != "duplicate":
                 self._rejected(key, reason, False)
@@ -105,7 +107,9 @@ class PredictorNode:
 
     # ------------------------------------------------------------------ status
     def detail(self) -> str:
-        d = f"live {self.core.describe()}; GNSS {self.gnss_state}" + ("; lockstep" if self.wait_s > 0 else "")
+        v = self.core.verifier
+        d = (f"live {self.core.describe()}; GNSS {self.gnss_state}" + ("; lockstep" if self.wait_s > 0 else "")
+             + (f"; sets signed by {v.key_id}" if v else "; UNSIGNED SETS ACCEPTED"))
         last = self.core.last_rejection
         return d + (f"; last rejected {last}" if last else "")
 

@@ -1,18 +1,51 @@
 """The trainer service's core, transport-free: one zennav.learn.learner.Learner per target variant fed with the
 ins's learn_sample messages and the sample counts of its learn_query messages; the fits run on the caller's
 training thread and each set goes to ``publish(name, model_params message)`` (see zennav.services.trainer for the
-wiring, ARCHITECTURE.md section 3 for the loop)."""
+wiring, ARCHITECTURE.md section 3 for the loop).
+
+Versions survive a restart: with a state directory, the last version of each model name is written there (atomically,
+before the set is published) and a restarted trainer continues above it; the trainer also continues above a set it
+finds on the bus (zennav.services.trainer). The held samples are not persisted: a restarted trainer learns again
+from the samples that arrive (its first set after min_samples of them)."""
 from __future__ import annotations
 
+import json
+import os
 import threading
 from collections import Counter
+from pathlib import Path
 
 from .. import messages as M
 from ..learn.learner import Learner
 from ..learn.settings import LearnSettings
+from ..learn.signing import Signer
 from ..nav.learning import FEATURES, OUTPUTS
 
 DEFAULTS = LearnSettings()
+
+
+class VersionFile:
+    """The last published version per model name, in <state dir>/versions.json (written atomically)."""
+
+    def __init__(self, directory) -> None:
+        self.path = Path(directory) / "versions.json"
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.versions: dict[str, int] = {}
+        if self.path.exists():
+            try:
+                data = json.loads(self.path.read_text())
+                self.versions = {str(k): int(v) for k, v in data.items()}
+            except (ValueError, TypeError, AttributeError) as e:
+                raise ValueError(f"{self.path}: not a version map ({e})") from None
+
+    def save(self, name: str, version: int) -> None:
+        self.versions[name] = int(version)
+        tmp = self.path.with_suffix(".tmp")
+        with open(tmp, "w") as f:
+            json.dump(self.versions, f, sort_keys=True)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, self.path)
 
 
 class TrainerNode:
@@ -21,18 +54,21 @@ class TrainerNode:
     message."""
 
     def __init__(self, publish, log, targets=("body_velocity",), settings: LearnSettings = DEFAULTS, *,
-                 prefix: str | None = None, device=None, first_version: int = 1):
+                 prefix: str | None = None, device=None, first_version: int = 1, signer: Signer | None = None,
+                 versions: VersionFile | None = None, fitter=None):
         self.publish = publish
         self.log = log
         self.settings = settings
         self.targets = tuple(targets)
         prefix = prefix or settings.model
-        self.learners = {t: Learner(t, settings, name=M.check_chunk(f"{prefix}-{t}", "model name"), device=device)
-                         for t in self.targets}
+        self.learners = {t: Learner(t, settings, name=M.check_chunk(f"{prefix}-{t}", "model name"), device=device,
+                                    fitter=fitter) for t in self.targets}
         self.names = {t: lr.name for t, lr in self.learners.items()}
         self.device = device
         self.cv = threading.Condition()
-        self.version = {t: int(first_version) - 1 for t in self.targets}
+        self.signer, self.versions = signer, versions
+        kept = versions.versions if versions else {}
+        self.version = {t: max(int(first_version) - 1, kept.get(self.names[t], 0)) for t in self.targets}
         self.counts: Counter[str] = Counter()
         self.busy = ""
 
@@ -98,7 +134,9 @@ class TrainerNode:
             return None
         with self.cv:
             self.version[target] = max(self.version[target], version)
-        msg = M.model_params_msg(ps)
+        if self.versions is not None:  # before it is published: a restart never reuses a version
+            self.versions.save(lr.name, version)
+        msg = M.model_params_msg(ps, None if self.signer is None else self.signer.sign(ps["checksum"]))
         self.publish(lr.name, msg)
         m = ps["metrics"]
         self.log.info("published %s v%d through %d samples (%d used, %s), 1-sigma %s", lr.name, version, n,
