@@ -132,7 +132,8 @@ def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicl
                 ev.set()
 
     for k in keys or [bus.keys.all()]:
-        bus.subscribe(k, on_sample, validate=False, channel="fifo", capacity=65536, name="record")
+        # recovering: what the cached publishers (sensors, solutions) sent while a link was down is fetched
+        bus.recovering_subscribe(k, on_sample, validate=False, channel="fifo", capacity=65536, name="record")
     bus.announce()
     click.echo(f"recording {', '.join(keys or [bus.keys.all()])} to {output} ({encoding})", err=True)
     t0 = time.monotonic()

@@ -122,6 +122,7 @@ class StreamFollower:
         self._refused = 0  # consecutive IMU slots refused as running backwards (a forged reference?)
         self._seen = 0.0  # monotonic time of the live stream's last message
         self._resume: tuple[dict, int, int] | None = None
+        self._busy = False  # a message is being handled (its consumer may wait, releasing the lock: lockstep)
         self._retry_in = 0
 
     def on_message(self, key: str, msg: dict) -> None:
@@ -151,9 +152,13 @@ class StreamFollower:
         self._seen = time.monotonic()
         merger = self.merger
         assert merger is not None  # _begin sets it with src: a message of the live (or just joined) stream
-        for m in M.samples(msg):
-            merger.push(m["cseq"], (key, m), self._release)
-        merger.touch()
+        self._busy = True
+        try:
+            for m in M.samples(msg):
+                merger.push(m["cseq"], (key, m), self._release)
+        finally:
+            self._busy = False
+            merger.touch()
 
     def _live(self) -> bool:
         """A stream is live: started, not ended, and heard from within takeover_after_s."""
@@ -163,7 +168,7 @@ class StreamFollower:
     def tick(self) -> None:
         """Call periodically (under the consumer's lock): skips a gap the stream stopped behind (a lost message
         right before the end), see zennav.messages.SequenceMerger.expire."""
-        if self.merger is not None and not self.done:
+        if self.merger is not None and not self.done and not self._busy:  # busy: a sample waits (lockstep)
             self.merger.expire(self._release)
 
     def resume(self, start: dict, next_cseq: int, t_ref_ns: int) -> None:
@@ -275,3 +280,20 @@ class StreamFollower:
         return {"src": self.src or "", "dataset": self.dataset, "done": self.done, "last_cseq": self.last_cseq,
                 "next_cseq": m.next if m else -1, "held": m.held if m else 0,
                 **({k: int(v) for k, v in m.counts.items()} if m else {})}
+
+
+def start_ticker(follower: StreamFollower, lock, stopping: Callable[[], bool], period_s: float = 0.25):
+    """A daemon thread calling follower.tick() every period_s under lock (the bus's callback lock; None: none)
+    until stopping()."""
+    import threading
+    from contextlib import nullcontext
+
+    def run() -> None:
+        while not stopping():
+            time.sleep(period_s)
+            with lock if lock is not None else nullcontext():
+                follower.tick()
+
+    t = threading.Thread(target=run, name="zennav-stream-tick", daemon=True)
+    t.start()
+    return t

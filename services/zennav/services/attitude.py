@@ -19,6 +19,7 @@ import sys
 from zennav.nodes.attitude import AttitudeNode
 from zennav.params import ParamError, load_attitude_params
 from zennav.service import ServiceRunner, add_bus_args
+from zennav.stream import start_ticker
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -29,6 +30,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate-max-age", type=float, default=60.0,
                    help="use the ins solution for omega_in_n while it is at most this old (sample time) [s]")
     p.add_argument("--queue", type=int, default=8192, help="sensor queue capacity (back-pressure beyond)")
+    p.add_argument("--takeover-after", type=float, default=10.0,
+                   help="[s] another source's stream_start replaces the live stream only after this long without a "
+                        "message of it (inf: only after its end)")
     return add_bus_args(p)
 
 
@@ -43,13 +47,16 @@ def main(argv=None) -> int:
     pub = run.bus.publisher(k.attitude())
     node = AttitudeNode(pub.put, run.log, config, k.imu(args.imu_id), args.rate_max_age,
                         on_state=lambda d: setattr(run, "detail", d), fetch_start=run.stream_start_of)
+    node.follower.takeover_after_s = args.takeover_after
     run.log.info("gains from %s: k_p %.4g 1/s, k_i %.4g 1/s^2", origin, *config.gains())
     run.counters = node.counters
     run.bus.subscribe(k.nav_solution(), lambda key, msg, recv_ns: node.on_solution(msg), channel="ring",
                       capacity=64, name="solution")
     # every sensor message of the live stream goes through the cseq merge (GNSS included, or it would leave gaps)
-    run.bus.subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
-                      capacity=args.queue, name="sensors")
+    # recovering: a restarted attitude service fetches the ingest's cache and levels again from there
+    run.bus.recovering_subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
+                                 capacity=args.queue, name="sensors")
+    start_ticker(node.follower, run.bus.callback_lock, lambda: run.stopping)
     return run.serve("running", f"waiting for a sensor stream; gains from {origin}")
 
 

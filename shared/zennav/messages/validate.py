@@ -3,9 +3,10 @@
 ``Validator.check(key, payload)`` decodes and checks: msgpack map, header, schema known and allowed on this
 key, supported version, field types, array shapes, finite numbers, the schema's own consistency check
 (``Schema.check``), and monotonic ``t_ns`` per (key, src) (strictly or non-decreasing per the stream's time
-policy; the sensor streams' time order is their consumers' cseq merge's, zennav.stream). It returns ``(msg, "")`` or ``(None, reason)``; rejections are counted per
-reason code (the part of the reason before ``:``) in ``Validator.rejected`` and never raise. Unknown extra
-fields are tolerated (forward compatible within one version) but never used.
+policy; the sensor streams' time order is their consumers' cseq merge's, zennav.stream). It returns
+``(msg, "")`` or ``(None, reason)``; rejections are counted per reason code (the part of the reason before
+``:``) in ``Validator.rejected`` and never raise. Unknown extra fields are tolerated (forward compatible
+within one version) but never used.
 """
 from __future__ import annotations
 

@@ -63,6 +63,7 @@ class InsNode:
             self._load_checkpoint()
 
     def _load_checkpoint(self) -> None:
+        assert self.checkpoint.path is not None  # called only with a checkpoint file
         try:
             saved = load_checkpoint(self.checkpoint.path)
         except CheckpointError as e:
