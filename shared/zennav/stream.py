@@ -100,7 +100,7 @@ class StreamFollower:
 
     def __init__(self, on_start: Callable, on_sample: Callable, on_end: Callable,
                  fetch_start: Callable[[str], dict | None] | None = None, log: logging.Logger | None = None,
-                 retry_every: int = 1000, max_hold: int = 256, timeout_s: float = 2.0,
+                 retry_every: int = 1000, max_hold: int = 1 << 16, timeout_s: float = 5.0,
                  takeover_after_s: float = 10.0, max_step_s: float = 1.0, on_resume: Callable | None = None):
         self.on_start, self.on_sample, self.on_end = on_start, on_sample, on_end
         self.on_resume = on_resume
@@ -158,7 +158,6 @@ class StreamFollower:
                 merger.push(m["cseq"], (key, m), self._release)
         finally:
             self._busy = False
-            merger.touch()
 
     def _live(self) -> bool:
         """A stream is live: started, not ended, and heard from within takeover_after_s."""

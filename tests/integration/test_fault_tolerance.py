@@ -42,7 +42,7 @@ def test_hijack_and_stalling_samples_are_refused_and_cost_nothing(cluster):
     for i in range(1, 401):
         pub_imu.put(M.imu_msg(t + i * 5_000_000, [0.0, 0.0, 0.1], [9.0, 0.0, 0.0], 5_000_000, i))
     # the stalling samples, on the live source (put_raw: the ingest's src stays)
-    last = imu.msgs()[-1]
+    last = [m for m in imu.msgs() if m["src"] == start["src"]][-1]  # (the collector sees our own too)
     forged = [dict(last, t_ns=last["t_ns"] + 1_000_000_000),  # a used cseq, 1 s ahead
               dict(last, cseq=last["cseq"] + 2000, t_ns=last["t_ns"] + 1000 * 10**9),  # a slot to come, far ahead
               dict(last, cseq=last["cseq"] + 10**7, t_ns=last["t_ns"] + 2 * 10**9)]  # a cseq far ahead
@@ -53,7 +53,7 @@ def test_hijack_and_stalling_samples_are_refused_and_cost_nothing(cluster):
     rej, merge = st["rejected"], st["stream"]
     print(f"\nrejected: {rej}\nmerge: {merge}")
     assert rej["takeover_refused"] == 1 and rej["foreign_source"] == 400
-    assert merge["duplicate"] == 1 and merge["time_jump"] == 1 and merge["far_ahead"] == 1 and merge["gap"] == 0
+    assert merge["duplicate"] == 1 and merge["time_jump"] == 1 and merge["far_ahead"] == 1 and merge.get("gap", 0) == 0
     assert st["imu_count"] == start["counts"]["imu"] and st["stream"]["src"] == start["src"]
     sols.wait(lambda c: len(c.msgs()) >= st["stream"]["solutions"], 30, "all solutions")
     _check_equal(sols.msgs(), _replay(60.0, []))
@@ -83,7 +83,7 @@ def test_a_lost_message_costs_a_counted_gap_and_the_stream_still_ends(cluster):
     t0 = time.monotonic()
     st = _done(status, 60, "the ins to finish the stream")
     print(f"\nend acknowledged {time.monotonic() - t0:.1f} s after the last message; merge: {st['stream']}")
-    assert st["stream"]["gap"] == 2 and st["imu_count"] == msgs[-1][1]["counts"]["imu"] - 2
+    assert st["stream"].get("gap") == 2 and st["imu_count"] == msgs[-1][1]["counts"]["imu"] - 2
     assert st["rejected"].get("bridged") == 1  # the mid-stream one: its neighbour's rates held over it
 
 
@@ -110,7 +110,7 @@ def test_ins_killed_mid_stream_resumes_from_its_checkpoint(cluster, tmp_path):
     assert ing.wait(60) == 0, ing.text()[-3000:]
     print(f"\nrestarted ins done {time.monotonic() - t_kill:.1f} s after the kill; rejected {st['rejected']}; "
           f"merge {st['stream']}; ingest paused {ing.text().count('pausing the stream')}x")
-    assert st["rejected"]["resumed"] == 1 and st["stream"]["gap"] == 0, ins2.text()[-3000:]
+    assert st["rejected"]["resumed"] == 1 and st["stream"].get("gap", 0) == 0, ins2.text()[-3000:]
     assert st["imu_count"] == 24_000 and st["stream"]["done"]
     sols.wait(lambda c: len({m["t_ns"] for m in c.msgs()}) >= 24_000, 30, "every solution")
     by_t = {m["t_ns"]: m for m in sols.msgs()}  # a sample navigated twice (before the kill, after the checkpoint)

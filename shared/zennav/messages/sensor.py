@@ -114,12 +114,13 @@ class SequenceMerger:
     - at its turn a cseq's candidates are offered, in arrival order, to ``accept(cseq, item) -> ''`` or a reason
       (counted under the reason); the first accepted is emitted; when none is, the slot stays open (the genuine
       item may still come);
-    - ``gap``: a missing cseq is skipped once more than ``max_hold`` cseqs wait behind it, or when ``expire``
-      finds the merge idle for ``timeout_s`` (``touch`` marks activity), or at ``flush`` (stream end).
+    - ``gap``: a missing cseq is skipped once it has been waited for ``timeout_s`` (wall clock, not counting the
+      time the consumer spends in ``emit``; checked at each push and by ``expire``), once more than ``max_hold``
+      cseqs are held, or at ``flush`` (stream end).
     So a bad item costs at most its own slot, and a lost one a counted gap."""
 
-    def __init__(self, next_cseq: int = 0, max_hold: int = 256, accept: Callable[[int, Any], str] | None = None,
-                 window: int = 1 << 16, max_candidates: int = 4, resync_run: int = 8, timeout_s: float = 2.0):
+    def __init__(self, next_cseq: int = 0, max_hold: int = 1 << 16, accept: Callable[[int, Any], str] | None = None,
+                 window: int = 1 << 16, max_candidates: int = 4, resync_run: int = 8, timeout_s: float = 5.0):
         self.next = next_cseq
         self.max_hold, self.window, self.max_candidates = max_hold, window, max_candidates
         self.resync_run, self.timeout_s = resync_run, timeout_s
@@ -127,8 +128,17 @@ class SequenceMerger:
         self._slots: dict[int, list] = {}  # cseq -> candidates, in arrival order
         self._heap: list[int] = []  # the held cseqs
         self._run: list[tuple[int, Any]] = []  # consecutive far-ahead items (a jump of the stream?)
-        self._active = time.monotonic()
+        self._emit_s = 0.0  # [s] spent in emit (the consumer's time, not waiting)
+        self._hole_since = 0.0  # _clock() when cseq next began to be waited for (items held)
         self.counts: Counter[str] = Counter()
+
+    def _clock(self) -> float:
+        return time.monotonic() - self._emit_s
+
+    def _emit(self, emit: Callable[[Any], None], item) -> None:
+        t0 = time.monotonic()
+        emit(item)
+        self._emit_s += time.monotonic() - t0
 
     def push(self, cseq: int, item, emit: Callable[[Any], None]) -> None:
         if cseq < self.next:
@@ -147,6 +157,8 @@ class SequenceMerger:
             return
         slot = self._slots.get(cseq)
         if slot is None:
+            if not self._heap:
+                self._hole_since = self._clock()
             slot = self._slots[cseq] = []
             heapq.heappush(self._heap, cseq)
         elif len(slot) >= self.max_candidates:
@@ -155,8 +167,11 @@ class SequenceMerger:
         self.counts["reordered"] += 1
         slot.append(item)
         self._drain(emit)
-        while len(self._heap) > self.max_hold:
+        while self._heap and (len(self._heap) > self.max_hold or self._overdue()):
             self._skip_gap(emit)
+
+    def _overdue(self) -> bool:
+        return self._clock() - self._hole_since > self.timeout_s
 
     def _far(self, cseq: int, item, emit) -> None:
         self.counts["far_ahead"] += 1
@@ -168,8 +183,7 @@ class SequenceMerger:
         run, self._run = self._run, []
         self.counts["far_ahead"] -= len(run)
         self.counts["resync"] += 1
-        while self._heap:  # release what is held before the jump, then skip to it
-            self._skip_gap(emit)
+        self.flush(emit)  # release what is held before the jump, then skip to it
         self.counts["gap"] += run[0][0] - self.next
         self.next = run[0][0]
         for c, it in run:
@@ -177,6 +191,7 @@ class SequenceMerger:
 
     def _drain(self, emit) -> None:
         h = self._heap
+        moved = False
         while h and h[0] == self.next:
             slot = self._slots[self.next]
             while slot:
@@ -186,11 +201,14 @@ class SequenceMerger:
                     break
                 self.counts[reason] += 1
             else:
-                return  # every candidate refused: the slot stays open
+                break  # every candidate refused: the slot stays open
             heapq.heappop(h)
             del self._slots[self.next]
             self.next += 1
-            emit(it)
+            moved = True
+            self._emit(emit, it)
+        if moved and h:  # a new hole: waited for from now
+            self._hole_since = self._clock()
 
     def _skip_gap(self, emit) -> None:
         """Skip the missing cseqs before the first held one (or an open slot whose candidates were refused)."""
@@ -203,18 +221,14 @@ class SequenceMerger:
         if h and h[0] > self.next:
             self.counts["gap"] += h[0] - self.next
             self.next = h[0]
+        self._hole_since = self._clock()
         self._drain(emit)
 
-    def touch(self) -> None:
-        """Mark activity (the consumer handled a message): the idle timeout counts from here."""
-        self._active = time.monotonic()
-
     def expire(self, emit: Callable[[Any], None]) -> None:
-        """Skip gaps while items are held and nothing happened for timeout_s (the missing one is lost)."""
-        if self._heap and time.monotonic() - self._active > self.timeout_s:
-            while self._heap:
-                self._skip_gap(emit)
-            self.touch()
+        """Skip the gaps waited for longer than timeout_s (call periodically: the stream may have stopped
+        behind a lost message)."""
+        while self._heap and self._overdue():
+            self._skip_gap(emit)
 
     def flush(self, emit) -> None:
         while self._heap:
