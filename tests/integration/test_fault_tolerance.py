@@ -117,3 +117,41 @@ def test_ins_killed_mid_stream_resumes_from_its_checkpoint(cluster, tmp_path):
     ref = _replay(120.0, [])
     _check_equal([by_t[t] for t in sorted(by_t)], ref)
     assert np.array_equal(sorted(by_t), ref.t_ns)
+
+
+def test_ingest_lies_no_more(cluster, tmp_path):
+    """The ingest's small lies (issue 19): a broken file gives one error line and no traceback; the publisher's
+    matching status is zenoh's (False without a subscriber); an ingest blocked by a consumer that stopped
+    draining exits within a few seconds of SIGTERM."""
+    import threading
+
+    from zennav.bus import Bus
+
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("imupath: nothere.txt\n")
+    p = cluster.service("ingest", broken, "--wait-for", "", wait=False)
+    assert p.wait(60) == 2
+    assert "cannot stream" in p.text() and "Traceback" not in p.text(), p.text()
+    k = cluster.keys
+    pub = cluster.bus.publisher(f"{k.base}/sensor/imu/matching")
+    assert not pub.matching
+    with Bus("listener", k.vehicle, mode="peer", connect=[cluster.endpoint], token=False) as other:
+        other.subscribe(pub.key, lambda key, msg, recv_ns: None)
+        wait_until(lambda: pub.matching, 10, "the matching status")
+    wait_until(lambda: not pub.matching, 10, "the matching status to drop")
+    frozen = threading.Event()  # a consumer that stops draining: its callback never returns until teardown
+    cluster.bus.subscribe(k.imu(), lambda key, msg, recv_ns: frozen.wait(), channel="fifo", capacity=8,
+                          name="frozen")
+    try:
+        ing = cluster.service("ingest", "sim:car", "-o", "duration_s=120", "--speed", "0", "--wait-for", "",
+                              wait=True)
+        wait_until(lambda: "speed max" in ing.text(), 30, "the ingest streaming")
+        time.sleep(3.0)  # the queues fill, the publish blocks
+        t0 = time.monotonic()
+        ing.p.send_signal(signal.SIGTERM)
+        rc = ing.wait(30)
+        took = time.monotonic() - t0
+        print(f"\nblocked ingest exited {took:.1f} s after SIGTERM (code {rc})")
+        assert took < 8.0 and "exiting without draining" in ing.text(), ing.text()[-2000:]
+    finally:
+        frozen.set()
