@@ -182,7 +182,6 @@ class StreamFollower:
         self._resume = None
         self._set(start, next_cseq)
         self.t_ref, self._last_cseq = t_ref, next_cseq - 1
-        self.counts["resumed"] += 1
         self.log.warning("resuming stream %s from %s at cseq %d (checkpoint)", start["dataset"], start["src"],
                          next_cseq)
         assert self.on_resume is not None  # resume() is called by consumers that handle it

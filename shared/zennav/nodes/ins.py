@@ -55,7 +55,7 @@ class InsNode:
         self._late = False  # this stream was joined late (its samples before the join are not ours)
         self.checkpoint = checkpoint or Checkpointer(None)
         self.bridge_max_ns = int(bridge_max_s * 1e9)
-        self.recovery: Counter[str] = Counter()  # bridged (IMU samples lost inside a bridged gap), realigned, ...
+        self.recovery: Counter[str] = Counter()  # gaps bridged, re-aligned after; resumed; checkpoint_* failures
         self._initial: dict = {}  # the InitialState the engine was built with (a checkpoint rebuilds it)
         self._t_imu = 0  # [ns] end of the last IMU interval given to the engine
         self._saved: dict | None = None  # the checkpoint to resume from, once its stream's first message arrives
@@ -223,8 +223,8 @@ class InsNode:
         nav = self.nav
         return M.nav_status_msg(
             nav.t_ns if nav is not None else 0, nav.status() if nav is not None else None,
-            {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s},
-            {**self.bus_rejected(), **self.follower.counts, **self.recovery}, self.imu_count, self.gnss_count,
+            {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s, **self.recovery},
+            {**self.bus_rejected(), **self.follower.counts}, self.imu_count, self.gnss_count,
             {"corrections_received": self.corrections,
              **(self.learn.status() if self.learn is not None else {"learning": False, "corrections_fused": 0})})
 
