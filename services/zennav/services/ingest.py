@@ -99,6 +99,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cache", type=int, default=20000,
                    help="sensor messages kept per key for consumers that recover what they missed (a restarted "
                         "ins or attitude service fetches them; zenoh's advanced publisher); 0: plain publishers")
+    p.add_argument("--max-lead", type=int, default=10000,
+                   help="with --speed 0: stay at most this many messages ahead of the slowest ins following the "
+                        "stream (its nav status), so that what a crashed ins had queued is still in the --cache; "
+                        "0: no limit")
     p.add_argument("--rejoin-timeout", type=float, default=30.0,
                    help="with --speed 0: [s] to pause the stream while an awaited service is down (restarting), "
                         "then stream on without it")
@@ -172,7 +176,14 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
         if run.stopping:
             return 0
         run.set_state("running", f"streaming {ds.name}")
-        hold = (lambda: _hold(run, waits, args.rejoin_timeout, stats)) if speed == 0 and waits else None
+        hold = None
+        if speed == 0 and waits:
+            progress = Progress(run.bus, args.rejoin_timeout)
+
+            def hold(cseq: int) -> None:
+                _hold(run, waits, args.rejoin_timeout, stats)
+                if args.max_lead > 0:
+                    progress.wait_within(cseq, args.max_lead, run)
         last_cseq = _stream(run, stream_messages(ds, windows, events, args.batch), int(ds.initial.t_ns), speed,
                             {"stream": p_stream, "imu": p_imu, "gnss": p_gnss}, stats, hold)
         if last_cseq is None:
@@ -198,6 +209,35 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
         return 1
 
 
+class Progress:
+    """How far each ins following this ingest's stream got (the next cseq its nav status reports), per service
+    name (a restarted ins replaces its old self); one not heard from for stale_s [s] is not waited for."""
+
+    def __init__(self, bus, stale_s: float):
+        self.src, self.stale_s = bus.src, stale_s
+        self._next: dict[str, tuple[int, float]] = {}  # ins service name -> (next cseq, monotonic time heard)
+        self._cv = threading.Condition()
+        for key in (bus.keys.nav_status(), f"{bus.keys.base}/nav/*/status"):
+            bus.subscribe(key, self._on_status, channel="ring", name="progress")
+
+    def _on_status(self, key, msg, recv_ns) -> None:
+        st = msg["stream"]
+        if st.get("src") == self.src:
+            with self._cv:
+                self._next[msg["src"].rsplit(".", 2)[0]] = (int(st.get("next_cseq", -1)), time.monotonic())
+                self._cv.notify_all()
+
+    def wait_within(self, cseq: int, lead: int, run) -> None:
+        """Block while cseq is more than lead ahead of the slowest ins heard from within stale_s."""
+        with self._cv:
+            while not run.stopping:
+                now = time.monotonic()
+                live = [n for n, t in self._next.values() if now - t < self.stale_s]
+                if not live or cseq - min(live) <= lead:
+                    return
+                self._cv.wait(0.2)
+
+
 def _hold(run, waits: list, timeout: float, stats: dict) -> None:
     """As fast as the consumers drain: pause while an awaited service is down (restarting: it recovers the
     messages it missed from the cache), at most timeout [s] per outage."""
@@ -218,7 +258,7 @@ def _hold(run, waits: list, timeout: float, stats: dict) -> None:
 
 def _stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=None) -> int | None:
     """Publish the stream's messages (zennav.stream.stream_messages), paced at ``speed`` times real time (0: as
-    fast as the consumers drain; hold(): called before each message, may pause); returns the last cseq, or None
+    fast as the consumers drain; hold(cseq): called before each message, may pause); returns the last cseq, or None
     when stopped."""
     wall0 = time.perf_counter()
     msg: dict = {}
@@ -226,7 +266,7 @@ def _stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=N
         if run.stopping:
             return None
         if hold is not None:
-            hold()
+            hold(msg["cseq"])
         if speed > 0 and kind == "imu":
             delay = wall0 + (msg["t_ns"] - t0_ns) / 1e9 / speed - time.perf_counter()
             if delay > 0:
