@@ -85,6 +85,8 @@ class InsNode:
         assert self.nav is not None
         self.nav.set_state(saved["nav"])
         self.imu_count, self.gnss_count, self.sol_count = saved["counts"]
+        if self.learn is not None and saved["learn_sent"]:  # the queries' n_samples go on where they were
+            self.learn.sent.update({t: n for t, n in saved["learn_sent"].items() if t in self.learn.sent})
         self._t_imu = saved["t_ref_ns"]
         self.recovery["resumed"] += 1
         self.on_state(f"navigating stream {start['dataset']} from {start['src']} (resumed from a checkpoint)")
@@ -174,7 +176,8 @@ class InsNode:
         try:
             self.checkpoint.write({"start": start, "next_cseq": msg["cseq"] + 1, "t_ref_ns": msg["t_ns"],
                                    "initial": self._initial, "late": self._late, "nav": nav.get_state(),
-                                   "counts": [self.imu_count, self.gnss_count, self.sol_count]})
+                                   "counts": [self.imu_count, self.gnss_count, self.sol_count],
+                                   "learn_sent": dict(self.learn.sent) if self.learn is not None else {}})
         except OSError as e:
             self.recovery["checkpoint_failed"] += 1
             self.log.error("checkpoint not written: %s", e)
