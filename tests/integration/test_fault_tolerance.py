@@ -161,8 +161,8 @@ def test_router_killed_and_restarted_a_client_recovers_the_solutions(cluster):
     """The ins and the ingest are peers of a router; a subscriber on another host is a zenoh client of that
     router (deploy/zenoh-client.json5: it reconnects). kill -9 of the router mid-stream, restarted 3 s later on
     the same endpoint: the client's recovering subscription fetches the solutions it missed from the ins's
-    cache (zenoh's advanced publisher and subscriber); what it could not recover is counted, so every solution
-    is either received or counted as missed."""
+    cache (zenoh's advanced publisher and subscriber; what it cannot recover is counted as missed): it gets
+    every solution (measured with a 2000-solution cache: 11178 received, 822 counted missed)."""
     from zennav_harness import free_port
 
     from zennav.bus import Bus
@@ -195,5 +195,6 @@ def test_router_killed_and_restarted_a_client_recovers_the_solutions(cluster):
         wait_until(lambda: len(got) + sum(client.missed.values()) >= 12_000, 30, "every solution or its count")
         print(f"\nclient: {n_at_kill} solutions before the kill, {len(got)} in all, missed {dict(client.missed)}")
         assert len(got) + sum(client.missed.values()) >= 12_000 and len(got) > n_at_kill
+        assert len(got) == 12_000 and not client.missed  # the ins's cache (--recovery-cache) outlasts the outage
     finally:
         client.close()

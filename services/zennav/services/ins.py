@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "message of it (inf: only after its end); refused takeovers are counted takeover_refused")
     p.add_argument("--bridge-max", type=float, default=0.5,
                    help="[s] lost IMU samples up to this long are bridged (rates held); longer: re-align")
-    p.add_argument("--recovery-cache", type=int, default=2000,
+    p.add_argument("--recovery-cache", type=int, default=12000,
                    help="solutions (and queries) kept for subscribers that recover what they missed (router "
                         "restart); 0: plain publishers")
     return add_bus_args(p)
