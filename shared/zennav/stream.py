@@ -10,9 +10,20 @@ imu (or imu_batch) and gnss messages in order, stream_end.
 samples of ONE stream (one ingest instance, ``src``) strictly in ``cseq`` order (zennav.messages.SequenceMerger,
 ``imu_batch`` expanded), with ``on_start`` before the first and ``on_end`` after the last.
 
-Source ownership: the stream whose start the follower took is live until its ``stream_end``; messages of
-another source meanwhile are dropped (counted ``foreign_source``). A new ``stream_start`` from another source
-replaces the live stream; a repeated one from the same source is counted ``duplicate_start``.
+Source ownership: the stream whose start the follower took is live until its ``stream_end``, or until it has
+been silent for ``takeover_after_s``; messages of another source meanwhile are dropped (``foreign_source``)
+and its ``stream_start`` is refused (``takeover_refused``); a repeated start of the live source is counted
+``duplicate_start``. Once the live stream ended or timed out, another source's start begins a new stream.
+
+No single message stalls the stream: samples are released through zennav.messages.SequenceMerger (bounded
+reorder window, holes skipped as counted gaps), and at its turn each is judged by the stream's time chain
+(``_accept``): an IMU interval must start where the last one ended (after skipped cseqs: later, by at most
+``max_step_s`` per cseq), a fix must lie within that much of it, the end must repeat the start's counts; a
+refused sample (counted ``time_jump``, ``time_backwards``, ``bad_end`` in the merge counts) leaves its cseq
+open for the genuine one. ``tick()`` (``start_ticker``) skips a hole the stream stopped behind.
+
+Resume (crash recovery): ``resume(start, next_cseq, t_ref_ns)`` takes a checkpoint's position in a stream; it
+applies once a message of that source arrives (``on_resume``), and is dropped when another stream starts.
 
 Late join (one policy for every consumer): a consumer that starts after a stream began (launched late,
 restarted by ``zennav launch``) joins it at the first IMU sample it receives. It needs the stream's
