@@ -60,7 +60,8 @@ def test_pipeline_10min_200hz_full_speed_equals_replay_no_loss(cluster):
     # nothing lost or duplicated
     assert st["imu_count"] == n and st["stream"]["solutions"] == n
     assert st["stream"].get("gap", 0) == 0 and st["stream"].get("duplicate", 0) == 0
-    assert st["rejected"] == {"foreign_source": 0, "no_stream": 0, "duplicate_start": 0, "late_join": 0}
+    assert st["rejected"] == {"foreign_source": 0, "no_stream": 0, "duplicate_start": 0, "late_join": 0,
+                              "takeover_refused": 0}
     cseq = [m["imu_cseq"] for m in msgs]
     assert len(set(cseq)) == n and cseq == sorted(cseq)
     assert [m["seq"] for m in msgs] == list(range(n))
