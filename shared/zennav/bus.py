@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, Literal, overload
 
 import zenoh
+import zenoh.ext
 
 from . import messages as M
 
@@ -108,15 +109,18 @@ class Publisher:
         self.bus = bus
         self.key = key
         self.qos = qos or M.qos_of(key)
-        self._pub = bus.session.declare_publisher(
-            key, encoding=_ENCODING, congestion_control=_CONGESTION[self.qos.congestion],
-            priority=_PRIORITY[self.qos.priority], express=self.qos.express,
-            reliability=_RELIABILITY[self.qos.reliability])
+        self._pub = self._declare(bus.session, key)
         self.seq = 0
         self.latest: bytes | None = None
         self._queryable = None
         if self.qos.latest if latest is None else latest:
             self._queryable = bus.session.declare_queryable(key, self._on_query, complete=True)
+
+    def _declare(self, session: zenoh.Session, key: str) -> Any:
+        return session.declare_publisher(
+            key, encoding=_ENCODING, congestion_control=_CONGESTION[self.qos.congestion],
+            priority=_PRIORITY[self.qos.priority], express=self.qos.express,
+            reliability=_RELIABILITY[self.qos.reliability])
 
     def put(self, msg: dict) -> bytes:
         """Stamp the header (src, seq, pub_ns), encode and publish; returns the payload."""
@@ -139,7 +143,8 @@ class Publisher:
 
     @property
     def matching(self) -> bool:
-        return bool(self._pub.matching_status)
+        """Whether a subscriber matches this key now (zenoh's matching status)."""
+        return bool(self._pub.matching_status.matching)
 
     def _on_query(self, query) -> None:  # zenoh thread: reply with cached bytes only
         payload = self.latest
@@ -171,10 +176,13 @@ class Subscription:
         self.validator = M.Validator()
         self.received = 0
         handler = zenoh.handlers.FifoChannel(capacity) if channel == "fifo" else zenoh.handlers.RingChannel(capacity)
-        self._sub = bus.session.declare_subscriber(keyexpr, handler)
+        self._sub = self._declare(bus.session, keyexpr, handler)
         self._handler = self._sub.handler
         self._thread = threading.Thread(target=self._run, name=f"zennav-sub-{name}", daemon=True)
         self._thread.start()
+
+    def _declare(self, session: zenoh.Session, keyexpr: str, handler: Any) -> Any:
+        return session.declare_subscriber(keyexpr, handler)
 
     def _run(self) -> None:
         h = self._handler
@@ -220,6 +228,65 @@ class Subscription:
             self._thread.join(join_timeout)
 
 
+class CachedPublisher(Publisher):
+    """A Publisher through zenoh's advanced publisher (zenoh.ext): it keeps its last ``cache`` samples and serves
+    them to advanced subscribers (``Bus.recovering_subscribe``), which fetch them at their start (history: a
+    restarted consumer gets what it missed while it was down) and when they detect a lost sample (recovery:
+    the publisher's sequence numbers, with a heartbeat every ``heartbeat_s`` so that a loss of the last samples
+    is seen too). A plain publisher on the same key answers ``matching`` (the advanced one has no status)."""
+
+    def __init__(self, bus: Bus, key: str, cache: int, qos: M.QoS | None = None, latest: bool | None = None,
+                 heartbeat_s: float = 0.5):
+        self.cache, self.heartbeat_s = int(cache), heartbeat_s
+        super().__init__(bus, key, qos, latest)
+        self._probe = super()._declare(bus.session, key)
+
+    def _declare(self, session: zenoh.Session, key: str) -> Any:
+        return zenoh.ext.declare_advanced_publisher(
+            session, key, encoding=_ENCODING, congestion_control=_CONGESTION[self.qos.congestion],
+            priority=_PRIORITY[self.qos.priority], express=self.qos.express,
+            reliability=_RELIABILITY[self.qos.reliability],
+            cache=zenoh.ext.CacheConfig(self.cache, replies_config=zenoh.ext.RepliesConfig(
+                congestion_control=_CONGESTION[self.qos.congestion], priority=_PRIORITY[self.qos.priority])),
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=self.heartbeat_s, sporadic_heartbeat=None),
+            publisher_detection=True)
+
+    @property
+    def matching(self) -> bool:
+        return bool(self._probe.matching_status.matching)
+
+    def close(self) -> None:
+        try:
+            self._probe.undeclare()
+        except Exception:
+            pass
+        super().close()
+
+
+class RecoveringSubscription(Subscription):
+    """A Subscription through zenoh's advanced subscriber: at its start it fetches the caches of the
+    CachedPublishers already there (history), and it recovers samples it detects as lost from them (recovery,
+    on the publishers' heartbeat); samples it could not recover are counted per key in ``Bus.missed``."""
+
+    def _declare(self, session: zenoh.Session, keyexpr: str, handler: Any) -> Any:
+        ext = zenoh.ext
+        sub = ext.declare_advanced_subscriber(session, keyexpr, handler, history=ext.HistoryConfig(),
+                                              recovery=ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+                                              subscriber_detection=True)
+        self._misses = sub.sample_miss_listener(self._on_miss)
+        return sub
+
+    def _on_miss(self, miss: Any) -> None:  # zenoh thread: count only
+        self.bus.count_missed(self.keyexpr, int(miss.nb))
+
+    def close(self, join_timeout: float = 2.0) -> None:
+        try:
+            self._misses.undeclare()
+        except Exception:
+            pass
+        super().close(join_timeout)
+
+
 class Bus:
     """One zenoh session of one service (see the module docstring).
 
@@ -241,6 +308,7 @@ class Bus:
         self.rejected: Counter[str] = Counter()
         self.rejected_by_key: Counter[tuple[str, str]] = Counter()
         self.errors: Counter[str] = Counter()
+        self.missed: Counter[str] = Counter()  # key expression -> samples lost, not recovered (recovering_subscribe)
         self._rej_lock = threading.Lock()
         self._token: zenoh.LivelinessToken | None = None
         self._alive: set[str] = set()
@@ -259,6 +327,33 @@ class Bus:
         if pub is None:
             pub = self._pubs[key] = Publisher(self, key, qos, latest)
         return pub
+
+    def cached_publisher(self, key: str, cache: int, qos: M.QoS | None = None) -> Publisher:
+        """A CachedPublisher on key keeping its last ``cache`` samples for recovering subscribers (one per key)."""
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = CachedPublisher(self, key, cache, qos)
+        return pub
+
+    def recovering_subscribe(self, keyexpr: str, callback: MsgCallback | RawCallback, *, validate: bool = True,
+                             channel: str | None = None, capacity: int = 4096,
+                             name: str | None = None) -> Subscription:
+        """subscribe() through a RecoveringSubscription: the publishers' caches fetched at the start and lost
+        samples recovered; what could not be recovered is counted in ``missed``."""
+        if channel is None:
+            st = M.stream_of(keyexpr)
+            channel = st.qos.channel if st is not None else "ring"
+        sub = RecoveringSubscription(self, keyexpr, callback, validate=validate, channel=channel, capacity=capacity,
+                                     name=name or keyexpr.rsplit("/", 1)[-1])
+        self._subs.append(sub)
+        return sub
+
+    def count_missed(self, keyexpr: str, n: int) -> None:
+        """Count samples a recovering subscription detected as lost and could not recover (any thread)."""
+        with self._rej_lock:
+            self.missed[keyexpr] += n
+            total = self.missed[keyexpr]
+        log.warning("%d samples on %s lost (not recovered; %d in all)", n, keyexpr, total)
 
     @overload
     def subscribe(self, keyexpr: str, callback: MsgCallback, *, validate: Literal[True] = True,

@@ -132,18 +132,34 @@ def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicl
                 ev.set()
 
     for k in keys or [bus.keys.all()]:
-        bus.subscribe(k, on_sample, validate=False, channel="fifo", capacity=65536, name="record")
+        # recovering: what the cached publishers (sensors, solutions) sent while a link was down is fetched
+        bus.recovering_subscribe(k, on_sample, validate=False, channel="fifo", capacity=65536, name="record")
     bus.announce()
     click.echo(f"recording {', '.join(keys or [bus.keys.all()])} to {output} ({encoding})", err=True)
     t0 = time.monotonic()
     try:
-        wait_event(ev, duration)
+        if until_stream_end:  # every ins acknowledged its end: its missing solutions get END_GRACE_S to arrive
+            ended_at = None
+            while not wait_event(ev, 0.5) and (duration is None or time.monotonic() - t0 < duration):
+                if ended_at is None and expected and all(n is not None for n in expected.values()):
+                    ended_at = time.monotonic()
+                if ended_at is not None and time.monotonic() - ended_at > END_GRACE_S:
+                    short = {k: n - rec.per_key.get(k[:-len("status")] + "solution", 0) for k, n in expected.items()
+                             if n is not None}
+                    click.echo(f"solutions missing after the stream end (a restarted ins's, lost with it): {short}",
+                               err=True)
+                    break
+        else:
+            wait_event(ev, duration)
     finally:
         bus.close()
         rec.close()
     click.echo(f"recorded {rec.count} messages on {len(rec.per_key)} keys in {time.monotonic() - t0:.1f} s "
                f"to {output}" + (f" ({rec.skipped} invalid payloads not recorded)" if rec.skipped else ""),
                err=True)
+
+
+END_GRACE_S = 10.0  # `zennav record --until-stream-end`: [s] to wait for solutions after every end acknowledged
 
 
 @click.command("bus-replay")

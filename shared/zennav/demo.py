@@ -217,9 +217,12 @@ def _background(fn: Callable[[], _T]) -> Callable[[], _T]:
     return result
 
 
-def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: float) -> tuple[Path, _Collector]:
+def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: float,
+            during: Callable[[Launcher, _Collector], object] | None = None) -> tuple[Path, _Collector]:
     """Launch the process set until the recorder and the demo have every solution of both ins; returns the
-    recording's path and what the demo received. settings: the learning loop's (the trainer gets them)."""
+    recording's path and what the demo received. settings: the learning loop's (the trainer gets them).
+    during(launcher, collector): run in a thread while the set runs (benchmarks/fault_injection.py kills
+    services with it)."""
     from .bus import Bus
 
     if not launch_file.is_file():
@@ -262,6 +265,9 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
     with open(log, "w") as f:
         tee = _Tee(f)
         launcher = _DemoLauncher(launch, tee, bus, collector.complete, limit_s=launch.up_timeout_s + limit_s)
+        if during is not None:
+            threading.Thread(target=during, args=(launcher, collector), name="zennav-demo-during",
+                             daemon=True).start()
         try:
             rc = launcher.run()
         finally:

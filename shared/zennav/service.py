@@ -180,6 +180,11 @@ class EndAcks:
         st = msg["stream"]
         if st.get("src") == self.src:
             with self._cv:
+                if msg["src"] not in self.following:  # a restarted ins (same service name) replaces its old self
+                    name = msg["src"].rsplit(".", 2)[0]
+                    for old in [s for s in self.following if s.rsplit(".", 2)[0] == name]:
+                        self.following.discard(old)
+                        self.acks.pop(old, None)
                 self.following.add(msg["src"])
                 if st.get("done"):
                     self.acks[msg["src"]] = int(st.get("last_cseq", -1))

@@ -10,9 +10,20 @@ imu (or imu_batch) and gnss messages in order, stream_end.
 samples of ONE stream (one ingest instance, ``src``) strictly in ``cseq`` order (zennav.messages.SequenceMerger,
 ``imu_batch`` expanded), with ``on_start`` before the first and ``on_end`` after the last.
 
-Source ownership: the stream whose start the follower took is live until its ``stream_end``; messages of
-another source meanwhile are dropped (counted ``foreign_source``). A new ``stream_start`` from another source
-replaces the live stream; a repeated one from the same source is counted ``duplicate_start``.
+Source ownership: the stream whose start the follower took is live until its ``stream_end``, or until it has
+been silent for ``takeover_after_s``; messages of another source meanwhile are dropped (``foreign_source``)
+and its ``stream_start`` is refused (``takeover_refused``); a repeated start of the live source is counted
+``duplicate_start``. Once the live stream ended or timed out, another source's start begins a new stream.
+
+No single message stalls the stream: samples are released through zennav.messages.SequenceMerger (bounded
+reorder window, holes skipped as counted gaps), and at its turn each is judged by the stream's time chain
+(``_accept``): an IMU interval must start where the last one ended (after skipped cseqs: later, by at most
+``max_step_s`` per cseq), a fix must lie within that much of it, the end must repeat the start's counts; a
+refused sample (counted ``time_jump``, ``time_backwards``, ``bad_end`` in the merge counts) leaves its cseq
+open for the genuine one. ``tick()`` (``start_ticker``) skips a hole the stream stopped behind.
+
+Resume (crash recovery): ``resume(start, next_cseq, t_ref_ns)`` takes a checkpoint's position in a stream; it
+applies once a message of that source arrives (``on_resume``), and is dropped when another stream starts.
 
 Late join (one policy for every consumer): a consumer that starts after a stream began (launched late,
 restarted by ``zennav launch``) joins it at the first IMU sample it receives. It needs the stream's
@@ -29,13 +40,15 @@ after ``retry_every`` more of them. If the first message received is the one rig
 from __future__ import annotations
 
 import logging
+import time
 from collections import Counter
 from collections.abc import Callable, Iterator
 
 from . import messages as M
 from .params import sensor_map
 
-DROPS = ("foreign_source", "no_stream", "duplicate_start", "late_join")
+DROPS = ("foreign_source", "no_stream", "duplicate_start", "late_join", "takeover_refused")
+RESYNC_AFTER = 8  # consecutive IMU samples refused as running backwards that re-anchor the time chain
 
 
 def stream_messages(ds, windows: list, events: list, batch: int = 1) -> Iterator[tuple[str, dict]]:
@@ -90,42 +103,100 @@ class StreamFollower:
     on_start(start, join): a stream begins; start is its stream_start message, join None when followed from
     its start, else the first imu message of a late join. on_sample(key, msg): an imu or gnss message of the
     live stream (each sample of an imu_batch as an imu message), in cseq order. on_end(end): its stream_end,
-    after every sample. fetch_start(src) -> the stream_start of src or None (late join; None: never joins)."""
+    after every sample. fetch_start(src) -> the stream_start of src or None (late join; None: never joins).
+    on_resume(start): a stream resumed from a checkpoint (``resume``) gets its first message.
+    takeover_after_s: another source's stream_start replaces a live stream only after this long [s, wall clock]
+    without a message of it (inf: only after its end); max_step_s: the most a sample may run ahead of the
+    stream's time per cseq [s]; max_hold, timeout_s: the merge's reorder window (zennav.messages.SequenceMerger)."""
 
     def __init__(self, on_start: Callable, on_sample: Callable, on_end: Callable,
                  fetch_start: Callable[[str], dict | None] | None = None, log: logging.Logger | None = None,
-                 retry_every: int = 1000, max_hold: int = 100_000):
+                 retry_every: int = 1000, max_hold: int = 1 << 16, timeout_s: float = 5.0,
+                 takeover_after_s: float = 10.0, max_step_s: float = 1.0, on_resume: Callable | None = None):
         self.on_start, self.on_sample, self.on_end = on_start, on_sample, on_end
+        self.on_resume = on_resume
         self.fetch_start = fetch_start
         self.log = log or logging.getLogger("zennav.stream")
         self.retry_every = retry_every
-        self.max_hold = max_hold
+        self.max_hold, self.timeout_s = max_hold, timeout_s
+        self.takeover_after_s = takeover_after_s
+        self.max_step_ns = int(max_step_s * 1e9)
         self.src: str | None = None
+        self.start: dict | None = None
         self.dataset = ""
         self.done = False
         self.last_cseq = -1
         self.merger: M.SequenceMerger | None = None
         self.counts: Counter[str] = Counter({d: 0 for d in DROPS})
+        self.t_ref = 0  # [ns] end of the last IMU interval handed on (the time chain's reference)
+        self._last_cseq = -1  # cseq of the last sample handed on
+        self._refused = 0  # consecutive IMU slots refused as running backwards (a forged reference?)
+        self._seen = 0.0  # monotonic time of the live stream's last message
+        self._resume: tuple[dict, int, int] | None = None
+        self._busy = False  # a message is being handled (its consumer may wait, releasing the lock: lockstep)
         self._retry_in = 0
 
     def on_message(self, key: str, msg: dict) -> None:
         """A validated message of a sensor key (stream_start, imu, imu_batch, gnss, stream_end)."""
+        src = msg["src"]
+        if self._resume is not None:
+            if src == self._resume[0]["src"]:
+                self._activate()
+            elif msg["schema"] == "stream_start":
+                self.log.info("checkpoint of stream %s dropped: a new stream starts", self._resume[0]["src"])
+                self._resume = None
         if msg["schema"] == "stream_start":
-            if msg["src"] == self.src:
+            if src == self.src:
                 self.counts["duplicate_start"] += 1
+                self._seen = time.monotonic()
+            elif self._live():
+                self._drop("takeover_refused", msg)
             else:
                 self._begin(msg, msg["cseq"] + 1, None)
             return
-        if msg["src"] != self.src:
-            if self.src is not None and not self.done:
+        if src != self.src:
+            if self._live():
                 self._drop("foreign_source", msg)
                 return
             if not self._join(msg):
                 return
+        self._seen = time.monotonic()
         merger = self.merger
         assert merger is not None  # _begin sets it with src: a message of the live (or just joined) stream
-        for m in M.samples(msg):
-            merger.push(m["cseq"], (key, m), self._release)
+        self._busy = True
+        try:
+            for m in M.samples(msg):
+                merger.push(m["cseq"], (key, m), self._release)
+        finally:
+            self._busy = False
+
+    def _live(self) -> bool:
+        """A stream is live: started, not ended, and heard from within takeover_after_s."""
+        return self.src is not None and not self.done and \
+            time.monotonic() - self._seen < self.takeover_after_s
+
+    def tick(self) -> None:
+        """Call periodically (under the consumer's lock): skips a gap the stream stopped behind (a lost message
+        right before the end), see zennav.messages.SequenceMerger.expire."""
+        if self.merger is not None and not self.done and not self._busy:  # busy: a sample waits (lockstep)
+            self.merger.expire(self._release)
+
+    def resume(self, start: dict, next_cseq: int, t_ref_ns: int) -> None:
+        """Resume the stream of ``start`` at next_cseq (a checkpoint: the samples before it were handled, the last
+        IMU interval ended at t_ref_ns), once a message of its source arrives; a new stream's start first drops
+        it. on_resume(start) is called then, instead of on_start."""
+        self._resume = (start, int(next_cseq), int(t_ref_ns))
+
+    def _activate(self) -> None:
+        assert self._resume is not None
+        start, next_cseq, t_ref = self._resume
+        self._resume = None
+        self._set(start, next_cseq)
+        self.t_ref, self._last_cseq = t_ref, next_cseq - 1
+        self.log.warning("resuming stream %s from %s at cseq %d (checkpoint)", start["dataset"], start["src"],
+                         next_cseq)
+        assert self.on_resume is not None  # resume() is called by consumers that handle it
+        self.on_resume(start)
 
     def _join(self, msg: dict) -> bool:
         """Join the stream of msg (its start was missed) at msg, an IMU message; False when not (yet) possible."""
@@ -149,16 +220,56 @@ class StreamFollower:
 
     def _begin(self, start: dict, next_cseq: int, join: dict | None) -> None:
         if self.src is not None and start["src"] != self.src:
-            self.log.info("new stream %s from %s replaces %s", start["dataset"], start["src"], self.src)
-        self.src, self.dataset, self.done, self.last_cseq = start["src"], start["dataset"], False, -1
-        self.merger = M.SequenceMerger(next_cseq, self.max_hold)
+            self.log.info("new stream %s from %s replaces %s%s", start["dataset"], start["src"], self.src,
+                          "" if self.done else " (timed out)")
+        self._set(start, next_cseq)
+        self.t_ref = start["t_ns"] if join is None else join["t_ns"] - join["dt_ns"]
+        self._last_cseq = next_cseq - 1
         self.on_start(start, join)
+
+    def _set(self, start: dict, next_cseq: int) -> None:
+        self.src, self.start, self.dataset, self.done, self.last_cseq = start["src"], start, start["dataset"], \
+            False, -1
+        self._refused, self._seen = 0, time.monotonic()
+        self.merger = M.SequenceMerger(next_cseq, self.max_hold, self._accept, timeout_s=self.timeout_s)
+
+    def _accept(self, cseq: int, item: tuple[str, dict]) -> str:
+        """The stream's time rule for the sample at its turn: '' or the reason it is refused. An IMU interval
+        starts where the last one ended (exactly: dt_ns chains the stream), or, after skipped cseqs, later but
+        at most max_step_s per cseq; a fix lies within max_step_s per cseq of that time; the end repeats the
+        start's counts. Consecutive IMU samples refused as running backwards re-anchor the chain (the sample it
+        was anchored on was forged)."""
+        msg = item[1]
+        schema, t = msg["schema"], msg["t_ns"]
+        steps = cseq - self._last_cseq
+        ahead = t - self.t_ref
+        if schema == "imu":
+            t0 = t - msg["dt_ns"]
+            if t0 != self.t_ref and not (steps > 1 and t0 > self.t_ref and ahead <= steps * self.max_step_ns):
+                if t0 > self.t_ref:
+                    return "time_jump"
+                self._refused += 1
+                if self._refused < RESYNC_AFTER:
+                    return "time_backwards"
+                self.counts["reanchored"] += 1
+                self.log.warning("time chain re-anchored at cseq %d after %d samples refused", cseq, self._refused)
+            self.t_ref, self._refused = t, 0
+        elif schema == "gnss":
+            if ahead > steps * self.max_step_ns:
+                return "time_jump"
+            if -ahead > self.max_step_ns:
+                return "time_backwards"
+        elif schema == "stream_end":
+            assert self.start is not None
+            if msg["counts"] != self.start["counts"] or msg["last_cseq"] != cseq:
+                return "bad_end"
+        self._last_cseq = cseq
+        return ""
 
     def _release(self, item: tuple[str, dict]) -> None:
         key, msg = item
         if msg["schema"] == "stream_end":
             assert self.merger is not None  # _release is called by the merger only
-            self.merger.flush(self._release)
             self.done, self.last_cseq = True, msg["last_cseq"]
             self.on_end(msg)
         else:
@@ -178,3 +289,20 @@ class StreamFollower:
         return {"src": self.src or "", "dataset": self.dataset, "done": self.done, "last_cseq": self.last_cseq,
                 "next_cseq": m.next if m else -1, "held": m.held if m else 0,
                 **({k: int(v) for k, v in m.counts.items()} if m else {})}
+
+
+def start_ticker(follower: StreamFollower, lock, stopping: Callable[[], bool], period_s: float = 0.25):
+    """A daemon thread calling follower.tick() every period_s under lock (the bus's callback lock; None: none)
+    until stopping()."""
+    import threading
+    from contextlib import nullcontext
+
+    def run() -> None:
+        while not stopping():
+            time.sleep(period_s)
+            with lock if lock is not None else nullcontext():
+                follower.tick()
+
+    t = threading.Thread(target=run, name="zennav-stream-tick", daemon=True)
+    t.start()
+    return t

@@ -5,6 +5,7 @@ the ins then aligns in motion)."""
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 import pytest
@@ -152,3 +153,85 @@ def test_ins_joining_late_aligns_in_motion_and_navigates():
     print(f"\nlate join: aligned {(aligned_t - msgs[first][1]['t_ns']) / 1e9:.1f} s after joining; horizontal "
           f"error after: max {err[after].max():.2f} m, end {err[-1]:.2f} m")
     assert err[after].max() < 5.0 and err[-1] < 1.0
+
+
+def test_merger_refused_candidate_leaves_its_slot_open_and_gaps_are_bounded():
+    """A candidate the consumer's rule refuses does not take its cseq: the genuine one arriving after it is
+    released; far-ahead cseqs are dropped unless a run of consecutive ones shows the stream jumped; a hole is
+    skipped as a counted gap after timeout_s (expire) even when nothing else arrives."""
+    out: list = []
+    m = M.SequenceMerger(1, accept=lambda c, item: "forged" if item == "bad" else "", timeout_s=0.05)
+    m.push(1, "bad", out.append)  # in order but refused: nothing released, the slot stays open
+    m.push(1, "one", out.append)
+    m.push(3, "bad", out.append)  # held for cseq 3, then its genuine twin arrives
+    m.push(3, "three", out.append)
+    m.push(2, "two", out.append)
+    assert out == ["one", "two", "three"] and m.counts["forged"] == 2 and m.counts["duplicate"] == 0
+    m.push(4 + (1 << 16), "far", out.append)  # one message far ahead: dropped
+    assert m.counts["far_ahead"] == 1 and m.next == 4
+    m.push(6, "six", out.append)  # 4 and 5 lost
+    assert out[-1] == "three"
+    time.sleep(0.1)
+    m.expire(out.append)
+    assert out[-1] == "six" and m.counts["gap"] == 2 and m.held == 0
+    jump = 100 + (1 << 16)
+    for c in range(jump, jump + 8):  # a run of consecutive far-ahead cseqs: the stream jumped
+        m.push(c, c, out.append)
+    assert out[-8:] == list(range(jump, jump + 8)) and m.counts["resync"] == 1 and m.counts["far_ahead"] == 1
+
+
+def test_follower_time_chain_refuses_forged_samples_and_takeovers():
+    """The follower's rule: a sample of the live source whose interval does not start where the last one ended
+    is refused (time_jump / time_backwards) without costing the genuine sample of its cseq; another source's
+    stream_start is refused while the live stream is heard from (takeover_refused) and taken after
+    takeover_after_s of silence."""
+    ds = load_dataset("sim:car", duration_s=5.0)
+    a, b = _msgs(ds, src="ingest.a"), _msgs(ds, src="ingest.b")
+    s = _Sink()
+    s.f.takeover_after_s = 0.2
+    for key, m in a[:100]:
+        s.f.on_message(key, m)
+    key, nxt = a[100]
+    s.f.on_message(key, dict(nxt, t_ns=nxt["t_ns"] + 10**9))  # the next cseq, 1 s ahead: refused
+    s.f.on_message(key, dict(a[50][1], t_ns=a[50][1]["t_ns"] + 10**9))  # a used cseq: duplicate
+    s.f.on_message(*b[0])  # a takeover while a is live: refused
+    for key, m in a[100:]:
+        s.f.on_message(key, m)
+    merge = s.f.merger.counts
+    assert s.f.done and len(s.samples) == len(a) - 2 and merge["time_jump"] == 1 and merge["duplicate"] == 1
+    assert s.f.counts["takeover_refused"] == 1 and s.f.src == "ingest.a"
+    s2 = _Sink()
+    s2.f.takeover_after_s = 0.2
+    for key, m in a[:100]:
+        s2.f.on_message(key, m)
+    time.sleep(0.3)  # a falls silent mid-stream: b may take over
+    s2.f.on_message(*b[0])
+    assert s2.f.src == "ingest.b" and s2.f.counts["takeover_refused"] == 0
+
+
+def test_ins_resumed_from_a_checkpoint_continues_as_the_replay(tmp_path):
+    """An ins that checkpoints every 5 s of data, killed after 20 s (its object dropped), and a new one started
+    with the same checkpoint file that gets the stream from before the checkpoint again (as from the ingest's
+    cache): the new one resumes at the checkpoint and its solutions are the replay's, bit for bit."""
+    from zennav.checkpoint import Checkpointer
+    from zennav.nodes.ins import InsNode
+
+    ds = load_dataset("sim:car", duration_s=40.0)
+    msgs = _msgs(ds, outages=[(25.0, 8.0)])
+    path = tmp_path / "ins.ckpt"
+    first = InsNode(lambda kind, m: None, log, checkpoint=Checkpointer(path, 5.0))
+    cut = next(i for i, (_k, m) in enumerate(msgs) if m["t_ns"] > ds.initial.t_ns + 20 * 10**9)
+    for key, m in msgs[:cut]:
+        first.on_sensor(key, m)
+    assert first.checkpoint.written == 3
+    sols: dict = {}
+    second = InsNode(lambda kind, m: sols.__setitem__(m["t_ns"], m) if kind == "solution" else None, log,
+                     checkpoint=Checkpointer(path, 5.0))
+    for key, m in msgs[cut - 3000:]:  # from before the checkpoint: duplicates for the merge
+        second.on_sensor(key, m)
+    assert second.recovery["resumed"] == 1 and second.follower.done
+    ref = run_replay(ds, outages=[(25.0, 8.0)])
+    t = sorted(sols)
+    keep = ref.t_ns >= t[0]
+    assert np.array_equal(t, ref.t_ns[keep]) and t[0] < msgs[cut][1]["t_ns"]
+    assert np.array_equal(np.array([sols[x]["llh"] for x in t]), ref.llh[keep])

@@ -25,6 +25,7 @@ import sys
 from zennav.nodes.attitude import VELOCITY_SOURCES, AttitudeNode
 from zennav.params import ParamError, load_attitude_params
 from zennav.service import ServiceRunner, add_bus_args
+from zennav.stream import start_ticker
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -43,6 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--accel-min-span", type=float, default=0.1,
                    help="difference velocity samples at least this far apart [s]")
     p.add_argument("--queue", type=int, default=8192, help="sensor queue capacity (back-pressure beyond)")
+    p.add_argument("--takeover-after", type=float, default=10.0,
+                   help="[s] another source's stream_start replaces the live stream only after this long without a "
+                        "message of it (inf: only after its end)")
     return add_bus_args(p)
 
 
@@ -62,14 +66,17 @@ def main(argv=None) -> int:
                             accel_min_span_s=args.accel_min_span, accel_max_age_s=args.accel_max_age)
     except ValueError as e:
         return run.fail(f"bad velocity reference settings: {e}")
+    node.follower.takeover_after_s = args.takeover_after
     run.log.info("gains from %s: k_p %.4g 1/s, k_i %.4g 1/s^2; gravity reference: %s", origin, *config.gains(),
                  node.reference())
     run.counters = node.counters
     run.bus.subscribe(k.nav_solution(), lambda key, msg, recv_ns: node.on_solution(msg), channel="ring",
                       capacity=64, name="solution")
     # every sensor message of the live stream goes through the cseq merge (GNSS included, or it would leave gaps)
-    run.bus.subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
-                      capacity=args.queue, name="sensors")
+    # recovering: a restarted attitude service fetches the ingest's cache and levels again from there
+    run.bus.recovering_subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
+                                 capacity=args.queue, name="sensors")
+    start_ticker(node.follower, run.bus.callback_lock, lambda: run.stopping)
     return run.serve("running", f"waiting for a sensor stream; gains from {origin}; gravity reference: "
                                 f"{node.reference()}")
 

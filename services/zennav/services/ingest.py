@@ -7,7 +7,10 @@ Wiring table
                <base>/sensor/imu/<id>    imu    (increments, as the dataset gives them: no conversion here), or
                                          imu_batch with --batch N: up to N consecutive samples per message
                <base>/sensor/gnss/<id>   gnss
-    waits for  liveliness of --wait-for services (default: ins) and a subscriber on the IMU key
+    waits for  liveliness of --wait-for services (default: ins) and a subscriber on the IMU key (zenoh's
+                                         matching status); with --speed 0 the stream pauses while one of them is
+                                         down (--rejoin-timeout): restarted, it recovers what it missed from the
+                                         publishers' cache (--cache, zenoh's advanced publisher)
     subscribes <base>/nav/status, <base>/nav/*/status   to see every ins that follows the stream acknowledge
                                          its end before the session closes
 
@@ -24,10 +27,14 @@ validation per N samples, the same samples, cseqs and order (consumers expand it
 from __future__ import annotations
 
 import argparse
+import logging
+import os
 import sys
+import threading
 import time
 from dataclasses import replace
 
+from zennav.datasets.errors import DataError
 from zennav.replay import parse_outage, parse_outage_every, sensor_events
 from zennav.service import EndAcks, ServiceRunner, add_bus_args
 from zennav.stream import stream_messages
@@ -95,6 +102,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gnss-latency", type=float, default=0.5,
                    help="[s] how long an IMU sample waits for the receiver's fixes up to its time")
     p.add_argument("--gnss-silence", type=float, default=2.0, help="[s] receiver silence that is counted and logged")
+    p.add_argument("--cache", type=int, default=20000,
+                   help="sensor messages kept per key for consumers that recover what they missed (a restarted "
+                        "ins or attitude service fetches them; zenoh's advanced publisher); 0: plain publishers")
+    p.add_argument("--max-lead", type=int, default=10000,
+                   help="with --speed 0: stay at most this many messages ahead of the slowest ins following the "
+                        "stream (its nav status), so that what a crashed ins had queued is still in the --cache; "
+                        "0: no limit")
+    p.add_argument("--rejoin-timeout", type=float, default=30.0,
+                   help="with --speed 0: [s] to pause the stream while an awaited service is down (restarting), "
+                        "then stream on without it")
+    p.add_argument("--stop-timeout", type=float, default=3.0,
+                   help="[s] after SIGTERM/SIGINT to wait for a publish blocked by a stalled consumer, then exit "
+                        "without draining")
     return add_bus_args(p)
 
 
@@ -106,13 +126,34 @@ def main(argv=None) -> int:
     speed = 0.0 if str(args.speed).lower() in ("0", "max", "inf") else float(args.speed)
     if args.batch < 1 or (args.batch > 1 and speed > 0):
         raise SystemExit("--batch N needs N >= 1, and N > 1 only with --speed 0 (paced samples go one by one)")
-    stats = {"imu": 0, "gnss": 0, "cseq": 0}
+    stats = {"imu": 0, "gnss": 0, "cseq": 0, "paused_s": 0}
     run.counters = lambda: dict(stats)
     acks = EndAcks(run.bus)  # every ins following the stream, and its acknowledgement of the end
-    p_stream = run.bus.publisher(k.stream())
-    p_imu = run.bus.publisher(k.imu(args.imu_id))
-    p_gnss = run.bus.publisher(k.gnss(args.gnss_id))
+
+    def publisher(key: str):
+        return run.bus.cached_publisher(key, args.cache) if args.cache > 0 else run.bus.publisher(key)
+
+    p_stream, p_imu, p_gnss = publisher(k.stream()), publisher(k.imu(args.imu_id)), publisher(k.gnss(args.gnss_id))
     run.ready("starting", f"loading {args.source}")
+    result: list[int] = []
+    worker = threading.Thread(target=lambda: result.append(_run(run, args, speed, acks, p_stream, p_imu, p_gnss,
+                                                                stats)), name="ingest", daemon=True)
+    worker.start()
+    # the main thread only waits: a publish blocked by a stalled consumer cannot delay the reaction to SIGTERM
+    while worker.is_alive() and not run.wait(0.2):
+        pass
+    worker.join(args.stop_timeout if run.stopping else None)
+    if worker.is_alive():
+        log.error("stopped while a publish was blocked by a stalled consumer: exiting without draining")
+        logging.shutdown()
+        os._exit(1)
+    run.close()
+    return result[0] if result else 1
+
+
+def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats: dict) -> int:
+    """Load, wait for the consumers, stream, wait for the end's acknowledgement; the exit code."""
+    log = run.log
     try:
         from zennav.datasets.registry import load_dataset
 
@@ -142,15 +183,25 @@ def main(argv=None) -> int:
             deadline = time.monotonic() + args.wait_timeout
             while not (p_imu.matching and p_stream.matching) and time.monotonic() < deadline and not run.stopping:
                 time.sleep(0.01)
+            if not (p_imu.matching and p_stream.matching):
+                log.warning("no subscriber on the sensor keys after %.0f s: streaming anyway", args.wait_timeout)
         if args.start_delay:
             run.wait(args.start_delay)
         if run.stopping:
             return 0
         run.set_state("running", f"streaming {ds.name}")
+        hold = None
+        if speed == 0 and waits:
+            progress = Progress(run.bus, args.rejoin_timeout)
+
+            def hold(cseq: int) -> None:
+                _hold(run, waits, args.rejoin_timeout, stats)
+                if args.max_lead > 0:
+                    progress.wait_within(cseq, args.max_lead, run)
         msgs = (stream_messages(ds, windows, events, args.batch) if receiver is None else
                 live_messages(ds, windows, events, receiver, speed, args.gnss_latency, lambda: run.stopping))
         last_cseq = _stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0,
-                            {"stream": p_stream, "imu": p_imu, "gnss": p_gnss}, stats)
+                            {"stream": p_stream, "imu": p_imu, "gnss": p_gnss}, stats, hold)
         if receiver is not None:
             receiver.stop()
             log.info("receiver %s: %s", args.gnss_receiver, receiver.counts)
@@ -167,24 +218,74 @@ def main(argv=None) -> int:
         if not args.exit_on_end:
             run.wait()
         return 0
-    except KeyboardInterrupt:
-        return 0
+    except (DataError, OSError, ValueError) as e:  # bad input: one line, no traceback
+        log.error("cannot stream %s: %s", args.source, e)
+        run.set_state("error", str(e))
+        return 2
     except Exception as e:
         log.exception("ingest failed: %s", e)
         run.set_state("error", str(e))
         return 1
-    finally:
-        run.close()
 
 
-def _stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict) -> int | None:
+class Progress:
+    """How far each ins following this ingest's stream got (the next cseq its nav status reports), per service
+    name (a restarted ins replaces its old self); one not heard from for stale_s [s] is not waited for."""
+
+    def __init__(self, bus, stale_s: float):
+        self.src, self.stale_s = bus.src, stale_s
+        self._next: dict[str, tuple[int, float]] = {}  # ins service name -> (next cseq, monotonic time heard)
+        self._cv = threading.Condition()
+        for key in (bus.keys.nav_status(), f"{bus.keys.base}/nav/*/status"):
+            bus.subscribe(key, self._on_status, channel="ring", name="progress")
+
+    def _on_status(self, key, msg, recv_ns) -> None:
+        st = msg["stream"]
+        if st.get("src") == self.src:
+            with self._cv:
+                self._next[msg["src"].rsplit(".", 2)[0]] = (int(st.get("next_cseq", -1)), time.monotonic())
+                self._cv.notify_all()
+
+    def wait_within(self, cseq: int, lead: int, run) -> None:
+        """Block while cseq is more than lead ahead of the slowest ins heard from within stale_s."""
+        with self._cv:
+            while not run.stopping:
+                now = time.monotonic()
+                live = [n for n, t in self._next.values() if now - t < self.stale_s]
+                if not live or cseq - min(live) <= lead:
+                    return
+                self._cv.wait(0.2)
+
+
+def _hold(run, waits: list, timeout: float, stats: dict) -> None:
+    """As fast as the consumers drain: pause while an awaited service is down (restarting: it recovers the
+    messages it missed from the cache), at most timeout [s] per outage."""
+    if set(waits) <= run.bus.alive():
+        return
+    down = sorted(set(waits) - run.bus.alive())
+    log = run.log
+    log.warning("pausing the stream: %s down", down)
+    t0 = time.monotonic()
+    ok = False
+    while not (ok or run.stopping) and time.monotonic() - t0 < timeout:
+        ok = run.bus.wait_alive(waits, 0.5)
+    stats["paused_s"] += round(time.monotonic() - t0)
+    (log.info if ok else log.error)("%s after %.1f s", "streaming on: all back" if ok else
+                                    f"streaming on without {sorted(set(waits) - run.bus.alive())}",
+                                    time.monotonic() - t0)
+
+
+def _stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=None) -> int | None:
     """Publish the stream's messages (zennav.stream.stream_messages), paced at ``speed`` times real time (0: as
-    fast as the consumers drain); returns the last cseq, or None when stopped."""
+    fast as the consumers drain; hold(cseq): called before each message, may pause); returns the last cseq, or None
+    when stopped."""
     wall0 = time.perf_counter()
     msg: dict = {}
     for kind, msg in msgs:
         if run.stopping:
             return None
+        if hold is not None:
+            hold(msg["cseq"])
         if speed > 0 and kind == "imu":
             delay = wall0 + (msg["t_ns"] - t0_ns) / 1e9 / speed - time.perf_counter()
             if delay > 0:

@@ -13,6 +13,9 @@ Wiring table
                                          GNSS or alignment state changes, at the stream end (its acknowledgement)
                <base>/learn/samples      --learning: the engine's training samples (GNSS good, converged)
                <base>/learn/query        --learning: the engine's prediction requests (GNSS lost)
+    The sensor subscription recovers (zenoh's advanced subscriber): a restarted ins fetches the ingest's cache,
+    and with --checkpoint resumes the engine where it was (zennav.checkpoint); the solution and query publishers
+    keep a cache for subscribers that recover what they missed (a router restart, a restarted predictor).
     <nav> is <base>/nav, or <base>/nav/<prefix> with --nav-prefix (a second ins beside the first on one stream).
 
 The core is zennav.nodes.ins.InsNode. Filter settings come from the parameter file (--params, default
@@ -27,10 +30,12 @@ import math
 import sys
 
 from zennav import messages as M
+from zennav.checkpoint import Checkpointer
 from zennav.learn.link import LearningLink
 from zennav.nodes.ins import InsNode
 from zennav.params import ParamError, load_filter_params
 from zennav.service import ServiceRunner, add_bus_args
+from zennav.stream import start_ticker
 
 LOCKSTEP_QUEUE = 1 << 24  # sensor messages buffered with --lockstep (a replay's whole stream)
 
@@ -59,6 +64,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="take roll/pitch from the attitude service during coarse alignment (heading unknown)")
     p.add_argument("--attitude-tilt-std", type=float, default=1.0,
                    help="1-sigma [deg] credited to the attitude service's at-rest roll/pitch for coarse alignment")
+    p.add_argument("--checkpoint", default=None, metavar="FILE",
+                   help="checkpoint the engine's whole state to FILE (atomically) and resume from it after a "
+                        "restart (zennav.checkpoint; default: none)")
+    p.add_argument("--checkpoint-every", type=float, default=10.0, help="[s of data] between checkpoints")
+    p.add_argument("--takeover-after", type=float, default=10.0,
+                   help="[s] another source's stream_start replaces the live stream only after this long without a "
+                        "message of it (inf: only after its end); refused takeovers are counted takeover_refused")
+    p.add_argument("--bridge-max", type=float, default=0.5,
+                   help="[s] lost IMU samples up to this long are bridged (rates held); longer: re-align")
+    p.add_argument("--recovery-cache", type=int, default=12000,
+                   help="solutions (and queries) kept for subscribers that recover what they missed (router "
+                        "restart); 0: plain publishers")
     return add_bus_args(p)
 
 
@@ -71,7 +88,9 @@ def main(argv=None) -> int:
         return run.fail(f"bad ins parameters: {e}")
     import zennav.nav.navigator  # noqa: F401  (import the core, scipy included, before announcing)
     k, bus = run.keys, run.bus
-    pubs = {"solution": bus.publisher(out.nav_solution()), "status": bus.publisher(out.nav_status())}
+    cache = args.recovery_cache
+    pubs = {"solution": bus.cached_publisher(out.nav_solution(), cache) if cache > 0 else
+            bus.publisher(out.nav_solution()), "status": bus.publisher(out.nav_status())}
 
     def publish(kind: str, msg: dict) -> None:
         (bus.publisher(out.nav_aid(msg["source"])) if kind == "aid" else pubs[kind]).put(msg)
@@ -84,7 +103,8 @@ def main(argv=None) -> int:
         if not targets or not set(targets) <= set(TARGETS):
             raise SystemExit(f"--learn-targets: choose from {TARGETS}")
         pubs["sample"] = bus.publisher(k.learn_samples())
-        pubs["query"] = bus.publisher(k.learn_query())
+        # cached: a restarted predictor fetches the queries it missed (a lockstep ins waits for their answers)
+        pubs["query"] = bus.cached_publisher(k.learn_query(), 64) if cache > 0 else bus.publisher(k.learn_query())
         # lockstep: the sensor callback waits on a condition of the serial bus's callback lock, which the
         # correction callback needs (zennav.learn.link)
         from zennav.nav.types import NavConfig
@@ -95,12 +115,16 @@ def main(argv=None) -> int:
                              lock=bus.callback_lock)
     node = InsNode(publish, run.log, filter_params, args.solution_every, on_state=lambda d: setattr(run, "detail", d),
                    bus_rejected=bus.rejected_counts, learning=learn, fetch_start=run.stream_start_of,
-                   imu_key=k.imu(args.imu_id), gnss_key=k.gnss(args.gnss_id))
-    run.counters = node.counters
+                   imu_key=k.imu(args.imu_id), gnss_key=k.gnss(args.gnss_id),
+                   checkpoint=Checkpointer(args.checkpoint, args.checkpoint_every), bridge_max_s=args.bridge_max,
+                   takeover_after_s=args.takeover_after)
+    run.counters = lambda: {**node.counters(), "missed": sum(bus.missed.values())}
     # lockstep: the ins waits for answers (a fit can take minutes) while the ingest streams on; its samples queue
-    # here without bound instead of holding the ingest's blocking push past zenoh's wait_before_close
-    bus.subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
-                  capacity=LOCKSTEP_QUEUE if args.lockstep else args.queue, name="sensors")
+    # here without bound instead of holding the ingest's blocking push past zenoh's wait_before_close.
+    # Recovering: a restarted ins fetches the ingest's cache (what it missed while down, the stream's start)
+    bus.recovering_subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
+                             capacity=LOCKSTEP_QUEUE if args.lockstep else args.queue, name="sensors")
+    start_ticker(node.follower, bus.callback_lock, lambda: run.stopping)
     if args.attitude_alignment:
         tilt_std = math.radians(args.attitude_tilt_std)
         bus.subscribe(k.attitude(), lambda key, msg, recv_ns: node.on_attitude(msg, tilt_std), channel="ring",

@@ -110,8 +110,9 @@ def main(argv=None) -> int:
 
     run.counters = node.counters
     bus.subscribe(k.learn_model(), on_model, validate=False, channel="fifo", capacity=256, name="model")
-    bus.subscribe(k.learn_query(), lambda key, msg, recv_ns: node.on_query(msg), channel="fifo",
-                  capacity=args.queue, name="query")
+    # recovering: a restarted predictor fetches the queries it missed from the ins's cache (a lockstep ins waits)
+    bus.recovering_subscribe(k.learn_query(), lambda key, msg, recv_ns: node.on_query(msg), channel="fifo",
+                             capacity=args.queue, name="query")
     bus.subscribe(k.nav_status(), lambda key, msg, recv_ns: node.on_nav_status(msg), channel="ring", capacity=4,
                   name="nav_status")
     if args.lockstep:

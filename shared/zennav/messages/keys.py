@@ -133,7 +133,7 @@ class Stream:
     name: str
     pattern: str  # regex on the key relative to zennav/@v1/<vehicle>/
     schemas: tuple
-    time: str  # "strict" (t_ns increasing), "nondecreasing", "none"
+    time: str  # "strict" (t_ns increasing), "nondecreasing", "cseq" (ordered by the consumer's cseq merge), "none"
     qos: QoS
 
 
@@ -141,9 +141,12 @@ _NAV = r"nav/(?:[A-Za-z0-9_\-.]+/)?"  # an optional nav prefix chunk (Keys.nav_p
 
 # Sensor keys share one priority so that they stay in publish order (the cseq merge does not depend on it).
 STREAMS: tuple[Stream, ...] = (
-    Stream("sensor/imu", r"sensor/imu/[^/]+", ("imu", "imu_batch"), "strict", QoS("reliable", "block", "DATA_HIGH")),
-    Stream("sensor/gnss", r"sensor/gnss/[^/]+", ("gnss",), "strict", QoS("reliable", "block", "DATA_HIGH")),
-    Stream("sensor/stream", r"sensor/stream", ("stream_start", "stream_end"), "nondecreasing",
+# Their time order is the consumers' cseq merge's ("cseq": zennav.stream checks the stream's time chain at each
+# sample's turn), not the validator's: a validator that remembers the latest time a source claimed lets one
+# far-future sample make every later one look late.
+    Stream("sensor/imu", r"sensor/imu/[^/]+", ("imu", "imu_batch"), "cseq", QoS("reliable", "block", "DATA_HIGH")),
+    Stream("sensor/gnss", r"sensor/gnss/[^/]+", ("gnss",), "cseq", QoS("reliable", "block", "DATA_HIGH")),
+    Stream("sensor/stream", r"sensor/stream", ("stream_start", "stream_end"), "cseq",
            QoS("reliable", "block", "DATA_HIGH", latest=True)),
     Stream("attitude", r"attitude", ("attitude",), "strict", QoS("reliable", "block", "DATA_HIGH", latest=True)),
     Stream("nav/solution", _NAV + r"solution", ("nav_solution",), "strict",

@@ -7,9 +7,11 @@ ingest instance (``src``). The sensor keys are published reliably with blocking 
 same priority, so in practice they arrive in publish order; consumers do not rely on that: they consume
 messages strictly in ``cseq`` order (``SequenceMerger``), holding any that arrive early until the missing
 ones come. Because the sequence totally orders IMU and GNSS, every fix with ``t_ns`` <= an IMU sample's
-``t_ns`` is handed to the core before that sample, without watermarks or timers. A gap that never fills
-(only possible if a sample is really lost) is skipped once more than ``max_hold`` messages are held, or at
-``stream_end``, and is counted as ``gap``; duplicates (cseq already consumed) are counted and dropped.
+``t_ns`` is handed to the core before that sample, without watermarks. No single message can stall the merge:
+its reorder window is bounded (in cseqs held and in idle time), a message far ahead of it is dropped, a
+message refused by the consumer's rule (``accept``: zennav.stream checks the stream's time chain) leaves its
+slot open for the genuine one, and a gap that never fills (a message really lost) is skipped and counted as
+``gap``; duplicates (cseq already consumed) are counted and dropped.
 An ``imu_batch`` holds N consecutive IMU samples (none of another sensor between them) with cseq c .. c+N-1;
 ``samples(msg)`` expands it into N ``imu`` messages, which consumers merge like any other.
 ``stream_start`` describes the sensors and the run (IMU noise model, GNSS lever arm, start/end times, initial
@@ -19,9 +21,9 @@ state and its uncertainty, outages withheld), never filter settings: those are t
 from __future__ import annotations
 
 import heapq
+import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -101,55 +103,132 @@ def gnss_fix(msg: dict):
                    fix=int(msg["fix"]), num_sats=int(msg["num_sats"]))
 
 
-@dataclass(order=True)
-class _Held:
-    cseq: int
-    n: int
-    item: Any = field(compare=False)
-
-
 class SequenceMerger:
-    """Releases items strictly in ``cseq`` order (see the module docstring): early ones are held; duplicates
-    (cseq already released or already held) are dropped and counted; when more than ``max_hold`` items wait
-    for a missing cseq, the gap is skipped and counted. ``flush()`` releases everything held (stream end)."""
+    """Releases items strictly in ``cseq`` order so that no single message can stall it (see the module
+    docstring). Rules, each counted under its name in ``counts``:
 
-    def __init__(self, next_cseq: int = 0, max_hold: int = 100_000):
+    - ``duplicate``: cseq already released, or ``max_candidates`` items already held for it;
+    - ``far_ahead``: cseq at or beyond ``next + window``: dropped, unless ``resync_run`` of them arrive with
+      consecutive cseqs (the stream really jumped ahead: the slots before the run are skipped as a gap);
+    - ``reordered``: held until its turn (up to ``max_candidates`` candidates per cseq);
+    - at its turn a cseq's candidates are offered, in arrival order, to ``accept(cseq, item) -> ''`` or a reason
+      (counted under the reason); the first accepted is emitted; when none is, the slot stays open (the genuine
+      item may still come);
+    - ``gap``: a missing cseq is skipped once it has been waited for ``timeout_s`` (wall clock, not counting the
+      time the consumer spends in ``emit``; checked at each push and by ``expire``), once more than ``max_hold``
+      cseqs are held, or at ``flush`` (stream end).
+    So a bad item costs at most its own slot, and a lost one a counted gap."""
+
+    def __init__(self, next_cseq: int = 0, max_hold: int = 1 << 16, accept: Callable[[int, Any], str] | None = None,
+                 window: int = 1 << 16, max_candidates: int = 4, resync_run: int = 8, timeout_s: float = 5.0):
         self.next = next_cseq
-        self.max_hold = max_hold
-        self._heap: list[_Held] = []
-        self._held: set[int] = set()
-        self._n = 0
+        self.max_hold, self.window, self.max_candidates = max_hold, window, max_candidates
+        self.resync_run, self.timeout_s = resync_run, timeout_s
+        self.accept = accept or (lambda cseq, item: "")
+        self._slots: dict[int, list] = {}  # cseq -> candidates, in arrival order
+        self._heap: list[int] = []  # the held cseqs
+        self._run: list[tuple[int, Any]] = []  # consecutive far-ahead items (a jump of the stream?)
+        self._emit_s = 0.0  # [s] spent in emit (the consumer's time, not waiting)
+        self._hole_since = 0.0  # _clock() when cseq next began to be waited for (items held)
         self.counts: Counter[str] = Counter()
 
+    def _clock(self) -> float:
+        return time.monotonic() - self._emit_s
+
+    def _emit(self, emit: Callable[[Any], None], item) -> None:
+        t0 = time.monotonic()
+        emit(item)
+        self._emit_s += time.monotonic() - t0
+
     def push(self, cseq: int, item, emit: Callable[[Any], None]) -> None:
-        if cseq < self.next or cseq in self._held:
+        if cseq < self.next:
             self.counts["duplicate"] += 1
             return
-        if cseq == self.next and not self._heap:
-            self.next += 1
-            emit(item)
+        if cseq >= self.next + self.window:
+            self._far(cseq, item, emit)
+            return
+        if cseq == self.next and not self._heap:  # the common case: in order, nothing held
+            reason = self.accept(cseq, item)
+            if not reason:
+                self.next += 1
+                emit(item)
+                return
+            self.counts[reason] += 1  # refused: the slot stays open for the genuine item
+            return
+        slot = self._slots.get(cseq)
+        if slot is None:
+            if not self._heap:
+                self._hole_since = self._clock()
+            slot = self._slots[cseq] = []
+            heapq.heappush(self._heap, cseq)
+        elif len(slot) >= self.max_candidates:
+            self.counts["duplicate"] += 1
             return
         self.counts["reordered"] += 1
-        self._n += 1
-        heapq.heappush(self._heap, _Held(cseq, self._n, item))
-        self._held.add(cseq)
+        slot.append(item)
         self._drain(emit)
-        if len(self._heap) > self.max_hold:
+        while self._heap and (len(self._heap) > self.max_hold or self._overdue()):
             self._skip_gap(emit)
+
+    def _overdue(self) -> bool:
+        return self._clock() - self._hole_since > self.timeout_s
+
+    def _far(self, cseq: int, item, emit) -> None:
+        self.counts["far_ahead"] += 1
+        if self._run and cseq != self._run[-1][0] + 1:
+            self._run = []
+        self._run.append((cseq, item))
+        if len(self._run) < self.resync_run:
+            return
+        run, self._run = self._run, []
+        self.counts["far_ahead"] -= len(run)
+        self.counts["resync"] += 1
+        self.flush(emit)  # release what is held before the jump, then skip to it
+        self.counts["gap"] += run[0][0] - self.next
+        self.next = run[0][0]
+        for c, it in run:
+            self.push(c, it, emit)
 
     def _drain(self, emit) -> None:
         h = self._heap
-        while h and h[0].cseq == self.next:
-            it = heapq.heappop(h)
-            self._held.discard(it.cseq)
+        moved = False
+        while h and h[0] == self.next:
+            slot = self._slots[self.next]
+            while slot:
+                it = slot.pop(0)
+                reason = self.accept(self.next, it)
+                if not reason:
+                    break
+                self.counts[reason] += 1
+            else:
+                break  # every candidate refused: the slot stays open
+            heapq.heappop(h)
+            del self._slots[self.next]
             self.next += 1
-            emit(it.item)
+            moved = True
+            self._emit(emit, it)
+        if moved and h:  # a new hole: waited for from now
+            self._hole_since = self._clock()
 
     def _skip_gap(self, emit) -> None:
-        first = self._heap[0].cseq
-        self.counts["gap"] += first - self.next
-        self.next = first
+        """Skip the missing cseqs before the first held one (or an open slot whose candidates were refused)."""
+        h = self._heap
+        if h[0] == self.next and not self._slots[self.next]:  # open slot, its candidates refused
+            heapq.heappop(h)
+            del self._slots[self.next]
+            self.counts["gap"] += 1
+            self.next += 1
+        if h and h[0] > self.next:
+            self.counts["gap"] += h[0] - self.next
+            self.next = h[0]
+        self._hole_since = self._clock()
         self._drain(emit)
+
+    def expire(self, emit: Callable[[Any], None]) -> None:
+        """Skip the gaps waited for longer than timeout_s (call periodically: the stream may have stopped
+        behind a lost message)."""
+        while self._heap and self._overdue():
+            self._skip_gap(emit)
 
     def flush(self, emit) -> None:
         while self._heap:
@@ -157,4 +236,4 @@ class SequenceMerger:
 
     @property
     def held(self) -> int:
-        return len(self._heap)
+        return sum(len(s) for s in self._slots.values())

@@ -2,10 +2,11 @@
 
 ``Validator.check(key, payload)`` decodes and checks: msgpack map, header, schema known and allowed on this
 key, supported version, field types, array shapes, finite numbers, the schema's own consistency check
-(``Schema.check``), and monotonic ``t_ns`` per (key, src) (strictly increasing for sensor streams,
-non-decreasing for derived streams). It returns ``(msg, "")`` or ``(None, reason)``; rejections are counted per
-reason code (the part of the reason before ``:``) in ``Validator.rejected`` and never raise. Unknown extra
-fields are tolerated (forward compatible within one version) but never used.
+(``Schema.check``), and monotonic ``t_ns`` per (key, src) (strictly or non-decreasing per the stream's time
+policy; the sensor streams' time order is their consumers' cseq merge's, zennav.stream). It returns
+``(msg, "")`` or ``(None, reason)``; rejections are counted per reason code (the part of the reason before
+``:``) in ``Validator.rejected`` and never raise. Unknown extra fields are tolerated (forward compatible
+within one version) but never used.
 """
 from __future__ import annotations
 
@@ -252,7 +253,7 @@ class Validator:
             return self._reject(key, r)
         stream = stream_of(key)
         assert stream is not None  # validate_map rejected keys outside the grammar
-        if stream.time != "none":
+        if stream.time in ("strict", "nondecreasing"):
             sk = (key, msg["src"])
             last = self.last_t.get(sk)
             t = msg["t_ns"]

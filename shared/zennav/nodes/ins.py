@@ -6,17 +6,24 @@ engine is built from the stream's sensor description and the filter settings of 
 (zennav.params.nav_config) and the stream's initial state; followed from its start, the solution is the
 in-process replay's bit for bit. A late joiner starts in coarse alignment at its first sample's start time
 (heading unknown; position, velocity and attitude from the next GNSS fixes, as an ins switched on in motion).
-Learning (a LearningLink given; off by default): the engine emits training samples and queries
+Crash recovery: with a Checkpointer the whole state (the engine's get_state, the stream position, counts) is
+written atomically every few seconds of data (zennav.checkpoint); a new InsNode with the same file resumes
+from it when the stream's messages (re-sent from the ingest's cache) arrive. IMU samples lost in a gap up to
+bridge_max_s are bridged (the next sample's rates held over the gap); after a longer gap the ins re-aligns as
+a late joiner. Learning (a LearningLink given; off by default): the engine emits training samples and queries
 (NavConfig.learning), the link publishes them and fuses the answers (zennav.learn.link).
 """
 from __future__ import annotations
 
 import math
 import time
+from collections import Counter
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from .. import messages as M
+from ..checkpoint import Checkpointer, CheckpointError
+from ..checkpoint import load as load_checkpoint
 from ..learn.link import LearningLink
 from ..params import nav_config
 from ..stream import StreamFollower
@@ -33,7 +40,8 @@ class InsNode:
 
     def __init__(self, publish, log, filter_params: dict | None = None, solution_every: int = 1,
                  status_period_ns: int = 1_000_000_000, on_state=None, bus_rejected=None,
-                 learning: LearningLink | None = None, fetch_start=None, imu_key=None, gnss_key=None):
+                 learning: LearningLink | None = None, fetch_start=None, imu_key=None, gnss_key=None,
+                 checkpoint: Checkpointer | None = None, bridge_max_s: float = 0.5, takeover_after_s: float = 10.0):
         self.publish, self.log = publish, log
         self.filter_params = dict(filter_params or {})
         self.learn = learning  # None: learning off (the default; the engine runs exactly as in the replay)
@@ -42,33 +50,94 @@ class InsNode:
         self.solution_every = max(1, int(solution_every))
         self.status_period_ns = status_period_ns
         self.keys = {"imu": imu_key, "gnss": gnss_key}
-        self.follower = StreamFollower(self._start, self._sample, self._end, fetch_start, log)
+        self.follower = StreamFollower(self._start, self._sample, self._end, fetch_start, log,
+                                       takeover_after_s=takeover_after_s, on_resume=self._resume)
         self.on_sensor = self.follower.on_message
         self.nav: Navigator | None = None
         self.imu_count = self.gnss_count = self.sol_count = self.corrections = self.attitude_taken = 0
         self.wall_s, self._wall0, self._next_status_t, self._states = 0.0, 0.0, 0, (None, None)
         self._late = False  # this stream was joined late (its samples before the join are not ours)
+        self.checkpoint = checkpoint or Checkpointer(None)
+        self.bridge_max_ns = int(bridge_max_s * 1e9)
+        self.recovery: Counter[str] = Counter()  # gaps bridged, re-aligned after; resumed; checkpoint_* failures
+        self._initial: dict = {}  # the InitialState the engine was built with (a checkpoint rebuilds it)
+        self._t_imu = 0  # [ns] end of the last IMU interval given to the engine
+        self._saved: dict | None = None  # the checkpoint to resume from, once its stream's first message arrives
+        if self.checkpoint.path is not None:
+            self._load_checkpoint()
+
+    def _load_checkpoint(self) -> None:
+        assert self.checkpoint.path is not None  # called only with a checkpoint file
+        try:
+            saved = load_checkpoint(self.checkpoint.path)
+        except CheckpointError as e:
+            self.recovery["checkpoint_unusable"] += 1
+            self.log.error("checkpoint not used: %s", e)
+            return
+        if saved is not None:
+            self._saved = saved
+            self.follower.resume(saved["start"], saved["next_cseq"], saved["t_ref_ns"])
+            self.log.info("checkpoint of stream %s from %s at cseq %d found: resuming when it is heard",
+                          saved["start"]["dataset"], saved["start"]["src"], saved["next_cseq"])
+
+    def _resume(self, start: dict) -> None:
+        """The follower resumes the checkpoint's stream: the engine as it was at the checkpoint."""
+        saved = self._saved
+        assert saved is not None  # the follower resumes only what _load_checkpoint gave it
+        self._saved = None
+        self._build(start, saved["initial"], saved["late"])
+        assert self.nav is not None
+        self.nav.set_state(saved["nav"])
+        self.imu_count, self.gnss_count, self.sol_count = saved["counts"]
+        if self.learn is not None and saved["learn_sent"]:  # the queries' n_samples go on where they were
+            self.learn.sent.update({t: n for t, n in saved["learn_sent"].items() if t in self.learn.sent})
+        self._t_imu = saved["t_ref_ns"]
+        self.recovery["resumed"] += 1
+        self.on_state(f"navigating stream {start['dataset']} from {start['src']} (resumed from a checkpoint)")
 
     def _start(self, start: dict, join: dict | None) -> None:
+        from ..nav.types import InitialState
+
+        initial = M.map_to_dataclass(InitialState, start["initial"])
+        if join is not None:  # late join: an ins switched on in motion, at the first sample's start time
+            initial = replace(initial, t_ns=join["t_ns"] - join["dt_ns"], heading_known=False)
+        self._build(start, M.dataclass_to_map(initial), join is not None)
+        self.imu_count = self.gnss_count = self.sol_count = 0
+        self.log.info("stream %s from %s%s: %s IMU, %s GNSS expected", start["dataset"], start["src"],
+                      " (joined late)" if join else "", start["counts"].get("imu"), start["counts"].get("gnss"))
+        self.on_state(f"navigating stream {start['dataset']} from {start['src']}")
+
+    def _build(self, start: dict, initial_map: dict, late: bool) -> None:
+        """The engine for start's sensors and this ins's filter settings, from initial_map (an InitialState map)."""
         from ..nav.navigator import Navigator
         from ..nav.types import InitialState
 
         config = nav_config(start["config"], self.filter_params)
-        initial = M.map_to_dataclass(InitialState, start["initial"])
-        if join is not None:  # late join: an ins switched on in motion, at the first sample's start time
-            initial = replace(initial, t_ns=join["t_ns"] - join["dt_ns"], heading_known=False)
+        initial = M.map_to_dataclass(InitialState, initial_map)
         if self.learn is not None:
             config = config.with_(learning=True)
             self.learn.reset()
         self.nav = nav = Navigator(config, initial)
-        self._late = join is not None
-        self.imu_count = self.gnss_count = self.sol_count = 0
+        self._initial, self._late, self._t_imu = initial_map, late, int(initial.t_ns)
         self._next_status_t = int(initial.t_ns) + self.status_period_ns
         self._states = (nav.gnss_state, nav.align_state)
         self._wall0, self.wall_s = time.perf_counter(), 0.0
-        self.log.info("stream %s from %s%s: %s IMU, %s GNSS expected", start["dataset"], start["src"],
-                      " (joined late)" if join else "", start["counts"].get("imu"), start["counts"].get("gnss"))
-        self.on_state(f"navigating stream {start['dataset']} from {start['src']}")
+
+    def _bridge(self, msg: dict) -> dict | None:
+        """An IMU sample after lost ones (its interval starts after the last one given to the engine): up to
+        bridge_max_s, its increments scaled to the whole gap (the rates held over it); beyond, the ins re-aligns
+        from this sample as a late joiner (returns None)."""
+        gap_ns = msg["t_ns"] - msg["dt_ns"] - self._t_imu
+        if gap_ns > self.bridge_max_ns:
+            self.recovery["realigned"] += 1
+            self.log.warning("%.3f s of the stream lost: re-aligning from cseq %d", gap_ns / 1e9, msg["cseq"])
+            start = self.follower.start
+            assert start is not None  # samples come only within a started stream
+            self._start(start, msg)
+            return None
+        k = (msg["t_ns"] - self._t_imu) / msg["dt_ns"]
+        self.recovery["bridged"] += 1
+        return {**msg, "dtheta": [k * x for x in msg["dtheta"]], "dvel": [k * x for x in msg["dvel"]]}
 
     def _sample(self, key: str, msg: dict) -> None:
         schema, nav = msg["schema"], self.nav
@@ -80,7 +149,13 @@ class InsNode:
             nav.on_gnss(M.gnss_fix(msg))
             self._reports(nav)
             return
+        if msg["t_ns"] - msg["dt_ns"] > self._t_imu:  # samples lost before this one
+            bridged = self._bridge(msg)
+            if bridged is None:
+                return
+            msg = bridged
         self.imu_count += 1
+        self._t_imu = msg["t_ns"]
         ok = nav.on_imu(msg["t_ns"], msg["dtheta"], msg["dvel"])  # False: rejected by the engine (counted)
         self._reports(nav)
         if self.learn is not None:
@@ -95,6 +170,21 @@ class InsNode:
             while self._next_status_t <= msg["t_ns"]:
                 self._next_status_t += self.status_period_ns
             self.publish("status", self.status_msg())
+        if self.checkpoint.due(msg["t_ns"]):
+            self._write_checkpoint(msg)
+
+    def _write_checkpoint(self, msg: dict) -> None:
+        """The state after msg (an IMU sample): the stream resumes at the next cseq (zennav.checkpoint)."""
+        nav, start = self.nav, self.follower.start
+        assert nav is not None and start is not None
+        try:
+            self.checkpoint.write({"start": start, "next_cseq": msg["cseq"] + 1, "t_ref_ns": msg["t_ns"],
+                                   "initial": self._initial, "late": self._late, "nav": nav.get_state(),
+                                   "counts": [self.imu_count, self.gnss_count, self.sol_count],
+                                   "learn_sent": dict(self.learn.sent) if self.learn is not None else {}})
+        except OSError as e:
+            self.recovery["checkpoint_failed"] += 1
+            self.log.error("checkpoint not written: %s", e)
 
     def _end(self, msg: dict) -> None:
         self.wall_s = time.perf_counter() - self._wall0
@@ -140,12 +230,12 @@ class InsNode:
         nav = self.nav
         return M.nav_status_msg(
             nav.t_ns if nav is not None else 0, nav.status() if nav is not None else None,
-            {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s},
+            {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s, **self.recovery},
             {**self.bus_rejected(), **self.follower.counts}, self.imu_count, self.gnss_count,
             {"corrections_received": self.corrections,
              **(self.learn.status() if self.learn is not None else {"learning": False, "corrections_fused": 0})})
 
     def counters(self) -> dict:
         return {"imu": self.imu_count, "gnss": self.gnss_count, "solutions": self.sol_count,
-                **{f"drop_{a}": b for a, b in self.follower.counts.items()},
+                **{f"drop_{a}": b for a, b in self.follower.counts.items()}, **self.recovery,
                 **({f"learn_{a}": b for a, b in dict(self.learn.counts).items()} if self.learn is not None else {})}
