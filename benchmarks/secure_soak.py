@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -96,7 +97,13 @@ def run_variant(name: str, out: Path, drive_s: float, creds: Path | None, limit_
     log = out / f"{name}.log"
     t0 = time.monotonic()
     with log.open("w") as f:
-        rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, timeout=limit_s).returncode
+        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT)
+        try:
+            rc = proc.wait(limit_s)
+        except subprocess.TimeoutExpired:  # stop the set (the launcher stops its services, the recorder closes)
+            proc.send_signal(signal.SIGTERM)
+            rc = proc.wait(120)
+            rc = rc or -signal.SIGTERM
     res = {"variant": name, "rc": rc, "wall_s": round(time.monotonic() - t0, 1), "log": str(log)}
     mcap = out / f"{name}.mcap"
     if mcap.exists():
@@ -109,7 +116,8 @@ def main(argv=None) -> int:
     p.add_argument("--drive-s", type=float, default=3000.0, help="simulated drive length [s of data]")
     p.add_argument("--out", type=Path, default=ROOT / "out" / "secure_soak")
     p.add_argument("--variants", default="plain,secure")
-    p.add_argument("--limit-s", type=float, default=3600.0, help="give up on a variant after this long [s]")
+    p.add_argument("--limit-s", type=float, default=3600.0,
+                   help="stop a variant after this long [s] (its figures then count what was not navigated)")
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     creds = args.out / "creds"

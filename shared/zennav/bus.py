@@ -12,10 +12,15 @@
 
 Threading: every subscription receives into a zenoh channel (``fifo``: bounded and lossless, a full queue
 back-pressures the sender through reliable/blocking transport; ``ring``: keeps the newest) and one worker
-thread per subscription drains it, decodes, validates and calls the service's callback. No Python code runs
-in zenoh's network threads except the latest-value queryables, which only reply with cached bytes. With
-``serial=True`` (default) the callbacks of one Bus never run concurrently (one lock), so services need no
-locking of their own.
+thread per subscription drains it, decodes, validates and calls the service's callback. A full fifo stops its
+link's receiving: for a client (every flow through one link to the router) each fifo subscription therefore
+gets a session, a link, of its own, so one full queue holds back only its own stream. On one shared link it
+would hold back every stream behind it, and flows that cross through the router deadlock (the ins's solutions
+wait behind sensor samples on the link to the attitude, whose attitudes wait behind sensor samples on the link
+to the ins) until zenoh closes the link (wait_before_close). Peers keep one session: their links are per pair.
+No Python code runs in zenoh's network threads except the latest-value queryables, which only reply with
+cached bytes. With ``serial=True`` (default) the callbacks of one Bus never run concurrently (one lock), so
+services need no locking of their own.
 """
 from __future__ import annotations
 
@@ -216,7 +221,9 @@ class Subscription:
         self.validator = M.Validator()
         self.received = 0
         handler = zenoh.handlers.FifoChannel(capacity) if channel == "fifo" else zenoh.handlers.RingChannel(capacity)
-        self._sub = bus.session.declare_subscriber(keyexpr, handler)
+        # a client's fifo on a link of its own (module docstring)
+        self._session = zenoh.open(bus._open_config()) if channel == "fifo" and bus.client else None
+        self._sub = (self._session or bus.session).declare_subscriber(keyexpr, handler)
         self._handler = self._sub.handler
         self._thread = threading.Thread(target=self._run, name=f"zennav-sub-{name}", daemon=True)
         self._thread.start()
@@ -263,6 +270,11 @@ class Subscription:
             pass
         if threading.current_thread() is not self._thread:
             self._thread.join(join_timeout)
+        if self._session is not None:
+            try:
+                self._session.close()
+            except Exception:
+                pass
 
 
 class Bus:
@@ -281,8 +293,11 @@ class Bus:
         self.service = M.check_chunk(service, "service")
         self.keys = M.Keys(vehicle or os.environ.get("ZENNAV_VEHICLE") or "car")
         identity = identity or os.environ.get("ZENNAV_IDENTITY") or service
-        self.session = zenoh.open(open_config(mode, config, connect, listen, identity=identity,
-                                                 secure_dir=secure_dir))
+        self._open_config = lambda: open_config(mode, config, connect, listen, identity=identity,
+                                                secure_dir=secure_dir)
+        conf = self._open_config()
+        self.client = json.loads(conf.get_json("mode")) == "client"
+        self.session = zenoh.open(conf)
         self.zid = str(self.session.zid())
         self.src = f"{service}.{self.zid[:12]}.{uuid.uuid4().hex[:6]}"
         self._cb_lock = threading.RLock() if serial else None
