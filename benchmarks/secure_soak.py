@@ -9,7 +9,7 @@ recorder's MCAP (zennav.recording.read_mcap), whose log time is the recorder's r
 - IMU published: the ingest's stream_end counts; per ins (nav/, nav/plain/): solutions recorded, duplicate
   solutions (a sample time twice), lost = IMU published - distinct solutions, and the ins's own merger counts
   (gap, duplicate) from its last nav/status;
-- throughput: IMU samples / (last solution - first IMU sample), recorder clock [samples/s].
+- throughput: IMU samples / (last solution - stream_start), recorder clock [samples/s].
 
     .venv/bin/python benchmarks/secure_soak.py [--drive-s 3000] [--out out/secure_soak] [--variants plain,secure]
 
@@ -61,15 +61,15 @@ def _set_file(out: Path, name: str, drive_s: float) -> Path:
 
 
 def _figures(mcap: Path) -> dict:
-    imu_first = None
+    t_start = None
     end: dict = {}
     sol_t: dict[str, Counter] = {}
     sol_last: dict[str, int] = {}
     status: dict[str, dict] = {}
-    for key, msg, _payload, log_ns in read_mcap(mcap):
+    for key, msg, _payload, log_ns in read_mcap(mcap, [r"/sensor/stream$", r"/nav/(.+/)?(solution|status)$"]):
         rel = key.split("/", 3)[3]
-        if rel.startswith("sensor/imu/") and imu_first is None:
-            imu_first = log_ns
+        if rel == "sensor/stream" and msg and msg.get("schema") == "stream_start":
+            t_start = log_ns  # published just before the first IMU sample
         elif rel == "sensor/stream" and msg and msg.get("schema") == "stream_end":
             end = msg
         elif rel.startswith("nav/") and rel.endswith("/solution") or rel == "nav/solution":
@@ -81,7 +81,7 @@ def _figures(mcap: Path) -> dict:
     out: dict = {"imu_published": imu, "ins": {}}
     for rel, c in sorted(sol_t.items()):
         st = status.get(rel[:-len("solution")] + "status", {})
-        seconds = (sol_last[rel] - imu_first) / 1e9 if imu_first else float("nan")
+        seconds = (sol_last[rel] - t_start) / 1e9 if t_start else float("nan")
         out["ins"][rel] = {"solutions": sum(c.values()), "distinct": len(c), "lost": imu - len(c),
                            "duplicate_solutions": sum(v - 1 for v in c.values() if v > 1),
                            "merger_gap": st.get("gap", 0), "merger_duplicate": st.get("duplicate", 0),
