@@ -3,7 +3,7 @@ ZENNAV_SECURE_DIR and --identity's credentials, then the overrides below) that p
 each --key and prints one JSON line {"opened": bool, "put": {key: count}, "error": str}.
 
 Overrides (an intruder): --cert/--key-file (another certificate), --no-cert (TLS without a client certificate),
---user/--password (other user/password credentials), --endpoint tcp/... (no TLS at all)."""
+--user/--password (other user/password credentials), --endpoint tcp/... (no TLS at all), --peer (a zenoh peer instead of a client)."""
 from __future__ import annotations
 
 import argparse
@@ -28,12 +28,17 @@ def main(argv=None) -> int:
     p.add_argument("--user")
     p.add_argument("--password")
     p.add_argument("--tag", help="first word of every payload (default: the identity)")
+    p.add_argument("--peer", action="store_true", help="open the session as a zenoh peer, not a client")
     args = p.parse_args(argv)
     tls = "transport/link/tls/"
     conf = open_config("client", connect=[args.endpoint.replace("tcp/", "tls/")], identity=args.identity)
     conf.insert_json5("connect/endpoints", json.dumps([args.endpoint]))
     conf.insert_json5("connect/timeout_ms", '{"client": 5000}')  # refused: fail instead of retrying forever
     conf.insert_json5("connect/exit_on_failure", '{"client": true}')
+    if args.peer:
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("connect/timeout_ms", '{"peer": 5000}')
+        conf.insert_json5("connect/exit_on_failure", '{"peer": true}')
     if args.no_cert:
         conf.insert_json5(tls + "connect_certificate", "null")
         conf.insert_json5(tls + "connect_private_key", "null")

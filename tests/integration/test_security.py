@@ -129,3 +129,15 @@ def test_unauthenticated_clients_are_refused(secure, tmp_path):
     for tag in [*cases, "tcp"]:
         assert secure.received(tag) == dict.fromkeys(KEYS, 0), tag
     assert secure.router.alive()
+
+
+@pytest.mark.parametrize("identity", ["ingest", "ins"])
+def test_a_peer_gets_the_same_rules_as_a_client(secure, identity):
+    """A zenoh peer (not a client) connected to the router is subject to the same rules: the services of the
+    secure variant are clients and listen nowhere, so the router is the only way in."""
+    res = secure.put(identity, "--peer", tag=f"peer-{identity}")
+    assert res["opened"], res
+    wait_until(lambda: all(secure.received(f"peer-{identity}")[n] >= COUNT for n in OWNS[identity]), 20,
+               f"{identity}'s authorised samples as a peer")
+    time.sleep(1.0)
+    assert secure.received(f"peer-{identity}") == {n: COUNT if n in OWNS[identity] else 0 for n in KEYS}
