@@ -3,7 +3,8 @@ ZENNAV_SECURE_DIR and --identity's credentials, then the overrides below) that p
 each --key and prints one JSON line {"opened": bool, "put": {key: count}, "error": str}.
 
 Overrides (an intruder): --cert/--key-file (another certificate), --no-cert (TLS without a client certificate),
---user/--password (other user/password credentials), --endpoint tcp/... (no TLS at all), --peer (a zenoh peer instead of a client)."""
+--user/--password (other user/password credentials), --endpoint tcp/... (no TLS at all), --peer (a zenoh peer
+instead of a client)."""
 from __future__ import annotations
 
 import argparse
