@@ -3,20 +3,29 @@
 - ``open_config`` builds a zenoh Config from a file in deploy/ (``zenoh-peer.json5``, ``zenoh-client.json5``,
   ``zenoh-router.json5``) with endpoint overrides from arguments or the environment
   (``ZENNAV_ZENOH_CONFIG``, ``ZENNAV_MODE``, ``ZENNAV_CONNECT``, ``ZENNAV_LISTEN``; comma-separated endpoints).
+  Secure variant (``ZENNAV_SECURE_DIR``: credentials of ``zennav certs DIR``): deploy/secure/client.json5 or
+  router.json5 (mutual TLS, user/password, the router's access control), tls/ endpoints only, the identity's
+  certificate and password (``ZENNAV_IDENTITY``, default the service name).
 - ``Bus`` is one session of one service: publishers and subscribers with the stream's QoS from
   ``zennav.messages``, a liveliness token ``zennav/@v1/<vehicle>/@alive/<service>``, liveliness watching,
   queryables serving the latest value of a stream, queries for late joiners, and clean shutdown.
 
 Threading: every subscription receives into a zenoh channel (``fifo``: bounded and lossless, a full queue
 back-pressures the sender through reliable/blocking transport; ``ring``: keeps the newest) and one worker
-thread per subscription drains it, decodes, validates and calls the service's callback. No Python code runs
-in zenoh's network threads except the latest-value queryables, which only reply with cached bytes. With
-``serial=True`` (default) the callbacks of one Bus never run concurrently (one lock), so services need no
-locking of their own.
+thread per subscription drains it, decodes, validates and calls the service's callback. A full fifo stops its
+link's receiving: for a client (every flow through one link to the router) each fifo subscription therefore
+gets a session, a link, of its own, so one full queue holds back only its own stream. On one shared link it
+would hold back every stream behind it, and flows that cross through the router deadlock (the ins's solutions
+wait behind sensor samples on the link to the attitude, whose attitudes wait behind sensor samples on the link
+to the ins) until zenoh closes the link (wait_before_close). Peers keep one session: their links are per pair.
+No Python code runs in zenoh's network threads except the latest-value queryables, which only reply with
+cached bytes. With ``serial=True`` (default) the callbacks of one Bus never run concurrently (one lock), so
+services need no locking of their own.
 """
 from __future__ import annotations
 
 import atexit
+import json
 import logging
 import os
 import threading
@@ -36,6 +45,7 @@ log = logging.getLogger("zennav.bus")
 
 DEPLOY_DIR = Path(__file__).resolve().parents[2] / "deploy"
 CONFIG_FILES = {"peer": "zenoh-peer.json5", "client": "zenoh-client.json5", "router": "zenoh-router.json5"}
+SECURE_CONFIG_FILES = {"client": "secure/client.json5", "router": "secure/router.json5"}
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 _PRIORITY = {n: getattr(zenoh.Priority, n) for n in ("REAL_TIME", "INTERACTIVE_HIGH", "INTERACTIVE_LOW", "DATA_HIGH",
@@ -65,21 +75,35 @@ def _split(v) -> list[str] | None:
     return [str(e) for e in v]
 
 
-def config_path(mode: str | None = None, config_file: str | os.PathLike | None = None) -> Path | None:
-    """The config file to use: explicit > ZENNAV_ZENOH_CONFIG > deploy/zenoh-<mode>.json5 (None if absent)."""
+def config_path(mode: str | None = None, config_file: str | os.PathLike | None = None,
+                secure: bool = False) -> Path | None:
+    """The config file to use: explicit > ZENNAV_ZENOH_CONFIG > deploy/zenoh-<mode>.json5, or with secure
+    deploy/secure/<client|router>.json5 (None if absent)."""
     path = config_file or os.environ.get("ZENNAV_ZENOH_CONFIG")
     if path:
         return Path(path)
-    p = DEPLOY_DIR / CONFIG_FILES.get(mode or "peer", CONFIG_FILES["peer"])
+    if secure:
+        p = DEPLOY_DIR / SECURE_CONFIG_FILES["router" if mode == "router" else "client"]
+    else:
+        p = DEPLOY_DIR / CONFIG_FILES.get(mode or "peer", CONFIG_FILES["peer"])
     return p if p.exists() else None
 
 
-def open_config(mode: str | None = None, config_file=None, connect=None, listen=None) -> zenoh.Config:
-    """zenoh Config from a deploy/ file, then mode/endpoint overrides (arguments win over the environment)."""
+def open_config(mode: str | None = None, config_file=None, connect=None, listen=None, *,
+                identity: str | None = None, secure_dir: str | os.PathLike | None = None) -> zenoh.Config:
+    """zenoh Config from a deploy/ file, then mode/endpoint overrides (arguments win over the environment).
+    secure_dir (else ZENNAV_SECURE_DIR): the secure variant with the credentials of ``identity`` (else
+    ZENNAV_IDENTITY) from that directory; raises ValueError for a peer, a non-tls endpoint or missing files."""
     mode = mode or os.environ.get("ZENNAV_MODE") or None
-    path = config_path(mode, config_file)
+    secure = secure_dir or os.environ.get("ZENNAV_SECURE_DIR") or None
+    if secure and mode not in (None, "client", "router"):
+        raise ValueError(f"secure bus: mode {mode!r} refused: services are clients of the router "
+                         "(peers open direct links that bypass its access control)")
+    path = config_path(mode, config_file, secure=bool(secure))
     if path is not None:
         conf = zenoh.Config.from_file(str(path))
+    elif secure:
+        raise ValueError(f"secure bus: no {DEPLOY_DIR / SECURE_CONFIG_FILES['client']} (run from the source tree)")
     else:  # installed without deploy/: the same defaults as deploy/zenoh-peer.json5
         conf = zenoh.Config()
         conf.insert_json5("scouting/multicast/enabled", "false")
@@ -90,11 +114,38 @@ def open_config(mode: str | None = None, config_file=None, connect=None, listen=
         conf.insert_json5("mode", f'"{mode}"')
     connect = _split(connect if connect is not None else os.environ.get("ZENNAV_CONNECT"))
     listen = _split(listen if listen is not None else os.environ.get("ZENNAV_LISTEN"))
+    if secure and (bad := [e for e in (connect or []) + (listen or []) if not e.startswith("tls/")]):
+        raise ValueError(f"secure bus: endpoints {bad} refused: tls/ only")
     if connect is not None:
         conf.insert_json5("connect/endpoints", _json_list(connect))
     if listen is not None:
         conf.insert_json5("listen/endpoints", _json_list(listen))
+    if secure:
+        _insert_credentials(conf, Path(secure), identity or os.environ.get("ZENNAV_IDENTITY") or "",
+                            router=mode == "router")
     return conf
+
+
+def _insert_credentials(conf: zenoh.Config, cred_dir: Path, identity: str, router: bool) -> None:
+    """TLS certificate/key of ``identity`` and the CA; the router its user/password dictionary, a client its
+    user name (= identity) and password (files of ``zennav certs``)."""
+    identity = "router" if router else identity
+    files = {"ca": cred_dir / "ca.pem", "cert": cred_dir / f"{identity}.pem", "key": cred_dir / f"{identity}.key",
+             "secret": cred_dir / ("usrpwd.txt" if router else f"{identity}.secret")}
+    missing = [str(p) for p in files.values() if not p.is_file()]
+    if not identity or missing:
+        raise ValueError(f"secure bus: no credentials for identity {identity!r} in {cred_dir} "
+                         f"({', '.join(missing) or 'no ZENNAV_IDENTITY'}): run `zennav certs {cred_dir}`")
+    tls = "transport/link/tls/"
+    conf.insert_json5(tls + "root_ca_certificate", json.dumps(str(files["ca"].resolve())))
+    for side in ("connect", "listen") if router else ("connect",):
+        conf.insert_json5(tls + f"{side}_certificate", json.dumps(str(files["cert"].resolve())))
+        conf.insert_json5(tls + f"{side}_private_key", json.dumps(str(files["key"].resolve())))
+    if router:
+        conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(files["secret"].resolve())))
+    else:
+        conf.insert_json5("transport/auth/usrpwd/user", json.dumps(identity))
+        conf.insert_json5("transport/auth/usrpwd/password", json.dumps(files["secret"].read_text().strip()))
 
 
 def _json_list(items: Iterable[str]) -> str:
@@ -176,7 +227,9 @@ class Subscription:
         self.validator = M.Validator()
         self.received = 0
         handler = zenoh.handlers.FifoChannel(capacity) if channel == "fifo" else zenoh.handlers.RingChannel(capacity)
-        self._sub = self._declare(bus.session, keyexpr, handler)
+        # a client's fifo on a link of its own (module docstring)
+        self._session = zenoh.open(bus._open_config()) if channel == "fifo" and bus.client else None
+        self._sub = self._declare(self._session or bus.session, keyexpr, handler)
         self._handler = self._sub.handler
         self._thread = threading.Thread(target=self._run, name=f"zennav-sub-{name}", daemon=True)
         self._thread.start()
@@ -226,6 +279,11 @@ class Subscription:
             pass
         if threading.current_thread() is not self._thread:
             self._thread.join(join_timeout)
+        if self._session is not None:
+            try:
+                self._session.close()
+            except Exception:
+                pass
 
 
 class CachedPublisher(Publisher):
@@ -291,15 +349,23 @@ class Bus:
     """One zenoh session of one service (see the module docstring).
 
     service: name used for the liveliness token and the status key; vehicle: the key-space vehicle;
-    mode/config/connect/listen: see open_config; token: declare the liveliness token now.
+    mode/config/connect/listen: see open_config; token: declare the liveliness token now; identity: whose
+    credentials a secure bus uses (default ZENNAV_IDENTITY, else the service name); secure_dir: the secure
+    variant's credentials (default ZENNAV_SECURE_DIR; see open_config).
     """
 
     def __init__(self, service: str, vehicle: str | None = None, *, mode: str | None = None, config=None,
-                 connect=None, listen=None, token: bool = True, serial: bool = True):
+                 connect=None, listen=None, token: bool = True, serial: bool = True, identity: str | None = None,
+                 secure_dir: str | os.PathLike | None = None):
         _init_zenoh_log()
         self.service = M.check_chunk(service, "service")
         self.keys = M.Keys(vehicle or os.environ.get("ZENNAV_VEHICLE") or "car")
-        self.session = zenoh.open(open_config(mode, config, connect, listen))
+        identity = identity or os.environ.get("ZENNAV_IDENTITY") or service
+        self._open_config = lambda: open_config(mode, config, connect, listen, identity=identity,
+                                                secure_dir=secure_dir)
+        conf = self._open_config()
+        self.client = json.loads(conf.get_json("mode")) == "client"
+        self.session = zenoh.open(conf)
         self.zid = str(self.session.zid())
         self.src = f"{service}.{self.zid[:12]}.{uuid.uuid4().hex[:6]}"
         self._cb_lock = threading.RLock() if serial else None

@@ -1,4 +1,4 @@
-"""`zennav` subcommands of the transport layer: router, launch, monitor, record, bus-replay.
+"""`zennav` subcommands of the transport layer: router, launch, monitor, record, bus-replay, certs.
 
 Bus options (every command): --vehicle, --mode, --zenoh-config, --connect, --listen (or the ZENNAV_*
 environment variables; see zennav.bus).
@@ -66,14 +66,18 @@ def router_cmd(listen, connect, zenoh_config, vehicle):
               help="the router's endpoint, overriding the file's (deploy/trainer.yaml has none: the edge's address)")
 @click.option("--vehicle", default=None, help="override the file's vehicle")
 @click.option("--until", default=None, help="stop everything once this service exits (e.g. ingest)")
-def launch_cmd(launch_file, rendezvous, vehicle, until):
+@click.option("--secure", "secure_dir", default=None, type=click.Path(exists=True, file_okay=False),
+              help="secure variant with the credentials in this directory (`zennav certs DIR`): every service a "
+                   "client of the router over mutual TLS with user/password, the router's access control "
+                   "(deploy/secure/); the rendezvous becomes tls/")
+def launch_cmd(launch_file, rendezvous, vehicle, until, secure_dir):
     """Start the process set described in LAUNCH_FILE (deploy/local.yaml, deploy/edge.yaml, and on another host
     deploy/trainer.yaml --rendezvous tcp/<edge-ip>:7447), wait on liveliness until all are up, prefix each log
     line with the service name, restart per policy, stop all cleanly on Ctrl-C."""
     from .launch import launch_main
 
     try:
-        code = launch_main(launch_file, rendezvous, vehicle, until)
+        code = launch_main(launch_file, rendezvous, vehicle, until, secure_dir)
     except (ValueError, KeyError, OSError) as e:
         raise click.ClickException(f"launch file: {e}") from None
     sys.exit(code)
@@ -209,3 +213,24 @@ def bus_replay_cmd(recording, keys, speed, wait_for, wait_timeout, raw, vehicle,
             acks.wait(None, wait_timeout, ev.is_set)
     finally:
         bus.close()
+
+
+@click.command("certs")
+@click.argument("out_dir", type=click.Path(file_okay=False))
+@click.option("--host", "hosts", multiple=True,
+              help="a DNS name or IP address clients use to reach the router (repeatable; localhost and 127.0.0.1 "
+                   "always): its certificate's subject alternative names")
+@click.option("--days", type=float, default=365.0, show_default=True, help="validity of the certificates")
+@click.option("--force", is_flag=True, help="replace the credentials already in OUT_DIR")
+def certs_cmd(out_dir, hosts, days, force):
+    """Write development credentials for the secure bus to OUT_DIR: a CA, a certificate and key per service
+    identity (common name = identity), the router's user/password dictionary and each identity's password.
+    Use with `zennav launch <set>.yaml --secure OUT_DIR`. Development only: keep ca.key off the vehicle."""
+    from pathlib import Path
+
+    from .certs import make_certs
+
+    if (Path(out_dir) / "ca.pem").exists() and not force:
+        raise click.ClickException(f"{out_dir} already holds credentials (--force to replace them)")
+    files = make_certs(out_dir, hosts, days)
+    click.echo(f"wrote {len(files)} files to {out_dir}: CA, {(len(files) - 3) // 3} identities, usrpwd.txt")

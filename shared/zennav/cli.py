@@ -25,13 +25,14 @@ from .replay_cli import replay, report  # noqa: E402
 main.add_command(replay)
 main.add_command(report)
 main.add_command(demo)
-from .bus_cli import bus_replay_cmd, launch_cmd, monitor_cmd, record_cmd, router_cmd  # noqa: E402
+from .bus_cli import bus_replay_cmd, certs_cmd, launch_cmd, monitor_cmd, record_cmd, router_cmd  # noqa: E402
 
 main.add_command(router_cmd)
 main.add_command(launch_cmd)
 main.add_command(monitor_cmd)
 main.add_command(record_cmd)
 main.add_command(bus_replay_cmd)
+main.add_command(certs_cmd)
 from .receivers.cli import gnss_sim  # noqa: E402
 
 main.add_command(gnss_sim)

@@ -22,6 +22,7 @@ Launch file (YAML)::
         after: []                    # start once these are alive
         optional: false              # true: not awaited (e.g. runs elsewhere)
         exit_ok: false               # true: exiting with 0 is expected (ingest at the end of a stream)
+        identity: router             # whose credentials it uses in the secure variant (default: name)
 
 Commands: "zennav..." executables are taken from this interpreter's bin directory; "{python}" is this
 interpreter; "{rendezvous}", "{vehicle}", "{keys}" and "{state}" are substituted (relative paths: from the
@@ -31,6 +32,10 @@ ZENNAV_VEHICLE and ZENNAV_MODE in its environment (explicit --connect/--listen i
 Services die with their launcher, even one killed with SIGKILL: each runs in its own session (a Ctrl-C in the
 terminal reaches the launcher only, which stops them in order) with the parent-death signal set to SIGTERM
 (zennav.pdeath, Linux), so no service is left running unsupervised.
+
+Secure variant (``zennav launch SET --secure DIR``, credentials of ``zennav certs DIR``): the rendezvous's
+scheme becomes tls/, every service a client of the router (mode client), and each gets ZENNAV_SECURE_DIR=DIR and
+ZENNAV_IDENTITY=<its identity> (zennav.bus then opens deploy/secure/*.json5 with that identity's credentials).
 """
 from __future__ import annotations
 
@@ -40,7 +45,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import yaml
@@ -61,6 +66,7 @@ class ServiceSpec:
     after: list = field(default_factory=list)
     optional: bool = False
     exit_ok: bool = False
+    identity: str = ""
 
 
 @dataclass
@@ -74,6 +80,7 @@ class LaunchSpec:
     services: list
     keys: str = "keys"
     state: str = "state"
+    secure_dir: str | None = None
 
 
 def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
@@ -102,7 +109,8 @@ def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
                                     alive_name=s.get("liveliness", s["name"]), env=dict(s.get("env", {})),
                                     restart=restart, max_restarts=int(s.get("max_restarts", 5)),
                                     after=list(s.get("after", [])), optional=bool(s.get("optional", False)),
-                                    exit_ok=bool(s.get("exit_ok", False))))
+                                    exit_ok=bool(s.get("exit_ok", False)),
+                                    identity=str(s.get("identity", s["name"]))))
     names = [s.name for s in services]
     if len(set(names)) != len(names):
         raise ValueError("service names must be unique")
@@ -112,6 +120,17 @@ def load_launch(path, overrides: dict | None = None) -> LaunchSpec:
                       stop_timeout_s=float(data.get("stop_timeout_s", 10)), services=services,
                       keys=os.environ.get("ZENNAV_KEYS") or str(data.get("keys", "keys")),
                       state=os.environ.get("ZENNAV_STATE_DIR") or str(data.get("state", "state")))
+
+
+def secure_variant(spec: LaunchSpec, secure_dir: str | os.PathLike) -> LaunchSpec:
+    """The set's secure variant (module docstring): tls/ rendezvous, clients only, credentials in secure_dir."""
+    scheme, _, address = spec.rendezvous.partition("/")
+    if scheme not in ("tcp", "tls"):
+        raise ValueError(f"secure variant: rendezvous {spec.rendezvous} is not tcp/ or tls/")
+    d = Path(secure_dir).resolve()
+    if not (d / "ca.pem").is_file():
+        raise ValueError(f"secure variant: {d} holds no credentials: run `zennav certs {secure_dir}`")
+    return replace(spec, rendezvous=f"tls/{address}", mode="client", secure_dir=str(d))
 
 
 def _resolve(cmd: list, spec: LaunchSpec) -> list:
@@ -165,6 +184,8 @@ class Launcher:
         env = dict(os.environ)
         env.update({"ZENNAV_CONNECT": self.spec.rendezvous, "ZENNAV_VEHICLE": self.spec.vehicle,
                     "ZENNAV_MODE": self.spec.mode, "PYTHONUNBUFFERED": "1"})
+        if self.spec.secure_dir:
+            env.update({"ZENNAV_SECURE_DIR": self.spec.secure_dir, "ZENNAV_IDENTITY": s.identity})
         env.update({k: str(v) for k, v in s.env.items()})
         return env
 
@@ -199,7 +220,7 @@ class Launcher:
                 client = self.spec.mode == "client"  # a set on another host than its router: a client of it
                 self.bus = Bus(f"launch-{os.getpid()}", self.spec.vehicle, mode=self.spec.mode,
                                connect=[self.spec.rendezvous], listen=None if client else ["tcp/127.0.0.1:0"],
-                               token=False)
+                               token=False, identity="launch", secure_dir=self.spec.secure_dir)
             self.bus.watch_alive(self._on_alive)
         return self.bus
 
@@ -215,8 +236,15 @@ class Launcher:
         try:
             self.say("launch", f"{self.spec.name}: {len(self.children)} services, rendezvous "
                                f"{self.spec.rendezvous}, vehicle {self.spec.vehicle}")
-            self._ensure_bus()  # a peer of the rendezvous retries in the background; a client waits for it
+            # a peer of the rendezvous retries in the background; a client waits for it: start what waits for
+            # nothing (the router of a secure set) before
+            first = [c for c in self.children.values() if not c.spec.after] if self.spec.mode == "client" else []
+            for c in first:
+                self.start(c)
+            self._ensure_bus()
             for c in self.children.values():
+                if c in first:
+                    continue
                 while not all(self._is_alive(a) for a in c.spec.after):
                     if self._stop.is_set():
                         return self._shutdown(0)
@@ -323,6 +351,9 @@ class Launcher:
         return code
 
 
-def launch_main(path, rendezvous: str | None = None, vehicle: str | None = None, until: str | None = None) -> int:
+def launch_main(path, rendezvous: str | None = None, vehicle: str | None = None, until: str | None = None,
+                secure_dir: str | None = None) -> int:
     spec = load_launch(path, {"rendezvous": rendezvous, "vehicle": vehicle})
+    if secure_dir:
+        spec = secure_variant(spec, secure_dir)
     return Launcher(spec).run(until=until)
