@@ -4,6 +4,7 @@ and the engine's augmented-state API they are built on (Navigator.add_states).""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -97,3 +98,19 @@ def test_add_states_api(car):
         nav.add_states("odo_scale", [0.01], 0.0, math.inf)
     with pytest.raises(ValueError):
         nav.add_states("bad", [float("nan")], 0.0, math.inf)
+
+
+def test_source_models_of_the_ins_states_work_with_augmented_states(car):
+    """Measurement models that cover only the 15 INS states (GNSS, its jump test) run against the 21-state
+    covariance: a fix 1 km off is rejected as a jump, the next good one fused."""
+    nav = Navigator(car.config, car.initial)
+    run_replay(replace(car, config=car.config.with_(end_t_ns=int(car.imu.t_ns[4000]))), navigator=nav)
+    k = int(np.searchsorted(car.gnss.t_ns, nav.t_ns, side="right"))
+    bad = car.gnss.fix_at(k)
+    bad.llh = bad.llh + np.array([1000.0 / 6.4e6, 0.0, 0.0])  # about 1 km north
+    fused = nav.counters["gnss_pos_fused"]
+    nav.on_gnss(bad)
+    nav.on_gnss(car.gnss.fix_at(k + 1))
+    for i in range(4001, 4001 + 500):
+        nav.on_imu(int(car.imu.t_ns[i]), car.imu.dtheta[i], car.imu.dvel[i])
+    assert nav.counters["gnss_pos_jump"] == 1 and nav.counters["gnss_pos_fused"] == fused + 1

@@ -179,7 +179,8 @@ class GnssPosition(AidSource):
         gate2, z = nav.gate_threshold(2), m.z
         if gate2 is None or math.hypot(z[0], z[1]) <= self.config.max_jump_m:
             return False
-        S = m.H @ nav.P @ m.H.T + m.R
+        k = m.H.shape[1]  # a model of the first k states (the engine pads it with zeros, see Navigator.update)
+        S = m.H @ nav.P[:k, :k] @ m.H.T + m.R
         if float(z[:2] @ np.linalg.solve(S[:2, :2], z[:2])) <= gate2:
             return False
         ratio = float(z @ np.linalg.solve(S, z)) / nav.gate_threshold(3)
