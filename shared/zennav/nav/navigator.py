@@ -100,6 +100,7 @@ class Navigator:
         self._omega_dt: tuple[tuple[float, ...], float] = ((0.0, 0.0, 0.0), 1.0)
         self._cov_dt = 0.0
         self._cov_dvel = [0.0, 0.0, 0.0]
+        self._imu_sample: tuple[list, list, float] = ([0.0] * 3, [0.0] * 3, 1.0)  # raw increments, interval [s]
         self._pending: list[GnssFix] = []
         self._reports: list[AidReport] = []
         self.tap = LearningTap(config.learn_horizon_s) if config.learning else None
@@ -127,6 +128,7 @@ class Navigator:
             return self._reject_imu("imu_nonfinite", t_ns)
         if t_ns <= self.t_ns:
             return self._reject_imu("imu_duplicate" if t_ns == self.t_ns else "imu_out_of_order", t_ns)
+        self._imu_sample = (dtheta, dvel, (t_ns - self.t_ns) / NS)
         while self._pending and self._pending[0].t_ns <= t_ns:
             fix = self._pending.pop(0)
             if fix.t_ns > self.t_ns:
@@ -225,6 +227,19 @@ class Navigator:
     @property
     def P(self) -> np.ndarray:
         return self.kf.P
+
+    @property
+    def n_states(self) -> int:
+        """Size of the error state (until the engine's augmented-state API lands: the 15 INS states)."""
+        return self.kf.P.shape[0]
+
+    def imu_rates(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Bias-corrected body rate omega_ib_b [rad/s] and specific force f_b [m/s^2] of the IMU sample being
+        processed and its interval [s] (for the sources' on_step; the sample's whole interval, however a GNSS fix
+        split it)."""
+        dtheta, dvel, dt = self._imu_sample
+        return (np.array(dtheta) / dt - np.array(self.gyro_bias), np.array(dvel) / dt - np.array(self.accel_bias),
+                dt)
 
     def solution(self) -> NavSolution:
         s = self.state
