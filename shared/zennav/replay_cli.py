@@ -32,21 +32,37 @@ _parse_every = _click_parser("parse_outage_every")
 
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
                    target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None,
-                   seed: int = 0, params: Path | None = None, nhc: bool | None = None) -> dict:
+                   seed: int = 0, params: Path | None = None, nhc: bool | None = None, profile: str | None = None,
+                   constraints: list[str] | None = None, odometer: Path | None = None) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
-    seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins); nhc:
-    override the parameter file's non-holonomic constraint (None: keep)."""
+    seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins);
+    profile: a vehicle profile of the parameter file ("dataset": the dataset's vehicle) that sets the constraints;
+    constraints: the constraint names to run instead (wins over the profile); nhc: override the non-holonomic
+    constraint after both (None: keep); odometer: a KF-GINS-Matlab ODO file of wheel speeds for the dataset."""
     from .datasets.errors import DataError
-    from .datasets.registry import load_dataset
+    from .datasets.odometer import load_kfgins_odometer
+    from .datasets.registry import load_dataset, vehicle_of
     from .learn.loop import make_compensator
     from .metrics import evaluate, format_table, write_outputs
-    from .params import ParamError, load_filter_params, nav_config
+    from .params import ParamError, constraint_flags, load_filter_params, load_profiles, nav_config
     from .replay import run_replay
 
     try:
         ds = load_dataset(spec)
-        ds.config = nav_config(ds.config, load_filter_params(params))  # the ins's filter on the dataset's sensors
+        filter_params = load_filter_params(params)
+        if profile is not None:
+            name = vehicle_of(spec) if profile == "dataset" else profile
+            profiles = load_profiles(params)
+            if name != "none" and name not in profiles:
+                raise ParamError(f"--profile: {name!r} is not a profile of {params or 'deploy/ins.yaml'} "
+                                 f"({', '.join(sorted(profiles))}, dataset or none)")
+            filter_params.update(constraint_flags(profiles.get(name, ())))
+        if constraints is not None:
+            filter_params.update(constraint_flags(constraints))
+        if odometer is not None:
+            ds.odometer = load_kfgins_odometer(odometer)
+        ds.config = nav_config(ds.config, filter_params)  # the ins's filter on the dataset's sensors
     except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
     if heading_unknown:
@@ -136,11 +152,22 @@ def _setup_logging(verbose: int) -> None:
 @click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,
               help="Innovation-based adaptive GNSS measurement noise (seed 001); default: the parameter file's (off).")
 @click.option("--nhc/--no-nhc", "nhc", default=None,
-              help="Non-holonomic constraint of a land vehicle (no sideslip, no jump); default: the parameter "
-                   "file's (off).")
+              help="Non-holonomic constraint of a land vehicle (no sideslip, no jump), after --profile and "
+                   "--constraints; default: the parameter file's (off).")
+@click.option("--profile", default=None, metavar="NAME",
+              help="Vehicle profile of the parameter file (car: nhc, zupt, odo; multirotor: zupt; fixed-wing: none; "
+                   "pedestrian: zupt), 'dataset' for the dataset's vehicle, or none; sets the constraints. Default: "
+                   "the parameter file's constraints.profile (none).")
+@click.option("--constraints", "constraints", default=None, metavar="LIST",
+              callback=lambda c, p, v: None if v is None else [x for x in v.split(",") if x and x != "none"],
+              help="The vehicle constraints to run, comma-separated from nhc, zupt, odo, or none; wins over "
+                   "--profile.")
+@click.option("--odometer", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="Wheel speeds for the dataset, a KF-GINS-Matlab ODO file (time of week [s], forward speed [m/s]); "
+                   "used with the odo constraint.")
 @_with_outage_opts
-def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, outages, every, out, as_json,
-           compensation, target, seed, verbose):
+def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, profile, constraints, odometer, outages,
+           every, out, as_json, compensation, target, seed, verbose):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
@@ -151,4 +178,4 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, ou
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
-                   heading_unknown, adaptive_r, seed, params, nhc)
+                   heading_unknown, adaptive_r, seed, params, nhc, profile, constraints, odometer)

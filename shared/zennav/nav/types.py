@@ -301,7 +301,7 @@ class NavConfig:
     odo_scale_psd: float = 1e-8  # PSD of the scale factor's driving noise [ratio^2/s]
     odo_scale_tau_s: float = 3600.0  # its Gauss-Markov correlation time [s]
     odo_max_age_s: float = 0.1  # a sample older than this behind the IMU time is not fused [s]
-    odo_max_speed_mps: float = 80.0  # a sample outside [0, this] is malformed [m/s]
+    odo_max_speed_mps: float = 80.0  # a sample faster than this (either sign) is malformed [m/s]
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 
@@ -325,7 +325,7 @@ class Dataset:
 
 @dataclass
 class OdometerData:
-    """Forward speed of the vehicle at its odometer (wheel speed, CAN speed) [m/s] at t_ns (N,)."""
+    """Forward speed of the vehicle at its odometer (wheel speed, CAN speed; negative reversing) [m/s] at t_ns (N,)."""
 
     t_ns: np.ndarray
     speed_mps: np.ndarray
