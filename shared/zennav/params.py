@@ -80,6 +80,8 @@ FILTER: dict[str, Param] = {
     "adaptive_test_probability": Param("adaptive_r", ""),
     "adaptive_floor": Param("adaptive_r", ""),
     "adaptive_ceiling": Param("adaptive_r", ""),
+    # the error state
+    "scale_factors": Param("states", "", "bool"),
     # the engine's side of learned compensation
     "learn_after_s": Param("learning", "s"),
     "learn_horizon_s": Param("learning", "s"),
@@ -257,7 +259,8 @@ def _convert_vec3(value, spec: Param, where: str) -> tuple:
     """'x, y, z unit' -> (x, y, z) in SI, checking the unit."""
     numbers, _, unit = str(value).strip().rpartition(" ")
     if unit != spec.unit:
-        raise ParamError(f"{where}: {value!r}: three numbers and the unit '{spec.unit}' expected ('0, 0, 0 {spec.unit}')")
+        raise ParamError(f"{where}: {value!r}: three numbers and the unit '{spec.unit}' expected "
+                         f"('0, 0, 0 {spec.unit}')")
     try:
         xyz = [float(x) for x in numbers.split(",")]
     except ValueError:

@@ -149,7 +149,14 @@ def test_config_units_converted_to_si(tmp_path, monkeypatch):
     assert ds.imu.t_ns[0] == init.t_ns == ds.config.start_t_ns == int(SOW0 * NS)
     assert len(ds.imu) == 10 and ds.config.end_t_ns == ds.imu.t_ns[-1]
     np.testing.assert_array_equal(ds.gnss.t_ns, [int((SOW0 + 0.02) * NS), int((SOW0 + 0.04) * NS)])
-    assert ds.notes["imu_rate_hz"] == 200 and any("scale" in r for r in ds.notes["remarks"])
+    assert ds.notes["imu_rate_hz"] == 200
+    # scale factors [ppm -> -]: KF-GINS's 21-state model (without initsgstd/initsastd their std is gsstd/asstd)
+    assert noise.gyro_scale_std == noise.accel_scale_std == pytest.approx(300e-6, rel=1e-14)
+    assert noise.gyro_scale_tau == noise.accel_scale_tau == 4 * 3600.0
+    assert init.std_gyro_scale is None and not any("scale" in r for r in ds.notes["remarks"])
+    ds = kfgins.load_config(write_demo(tmp_path, initgyrscale=[1000.0, 0, 0], initsastd=[50.0] * 3))
+    np.testing.assert_allclose(ds.initial.gyro_scale, [1e-3, 0, 0], rtol=1e-15)
+    np.testing.assert_allclose(ds.initial.std_accel_scale, np.full(3, 50e-6), rtol=1e-15)
 
 
 def test_config_options_window_and_cwd_first(tmp_path, monkeypatch):

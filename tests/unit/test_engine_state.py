@@ -14,6 +14,7 @@ from zennav.datasets.registry import load_dataset
 from zennav.nav.learning import OUTPUTS
 from zennav.nav.navigator import Navigator
 from zennav.nav.types import NS
+from zennav.sim.scenarios import make_dataset
 
 
 def _pack(x) -> bytes:
@@ -181,3 +182,10 @@ def test_restore_with_the_non_holonomic_constraint(car):
     config = car.config.with_(nhc=True, nhc_every_s=0.1)
     nav, state = assert_continues_exactly(car, config, car.initial, 9000, 6511, outages=[(30.0, 15.0)])
     assert state["sources"]["nhc"]["next_ns"] > 0 and nav.counters["nhc_fused"] > 0
+
+
+def test_restore_with_scale_factor_states():
+    """The 21-state option's augmented states (values and covariance) are part of the state."""
+    car = make_dataset("car", duration_s=60.0, seed=3, scale_ppm=(5000.0, 5000.0))
+    nav, state = assert_continues_exactly(car, car.config, car.initial, 9000, 6017, outages=[(30.0, 10.0)])
+    assert nav.n_states == 21 and len(state["aug"]["x"]) == 6 and any(x != 0.0 for x in state["aug"]["x"])

@@ -32,6 +32,7 @@ WEEK_NS = 604800 * NS
 D2R = math.pi / 180.0
 MGAL = 1e-5  # [m/s^2]
 DEG_PER_H = D2R / 3600.0  # [rad/s]
+PPM = 1e-6  # scale factor [-]
 SQRT_H = 60.0  # sqrt(3600 s)
 TRUTH_FIELDS = ("pos", "vel", "att")
 
@@ -202,8 +203,8 @@ def write_dataset(dataset: Dataset, folder, name: str | None = None) -> Path:
         "vrw": [noise.vrw * SQRT_H] * 3,
         "gbstd": [noise.gyro_bias_std / DEG_PER_H] * 3,
         "abstd": [noise.accel_bias_std / MGAL] * 3,
-        "gsstd": [0.0] * 3,
-        "asstd": [0.0] * 3,
+        "gsstd": [noise.gyro_scale_std / PPM] * 3,
+        "asstd": [noise.accel_scale_std / PPM] * 3,
         "corrtime": noise.gyro_bias_tau / 3600.0,
     }
     if noise.accel_bias_tau != noise.gyro_bias_tau:
@@ -220,8 +221,8 @@ def write_dataset(dataset: Dataset, folder, name: str | None = None) -> Path:
         "initatt": vec(np.rad2deg(init.euler)),
         "initgyrbias": vec(init.gyro_bias, 1.0 / DEG_PER_H),
         "initaccbias": vec(init.accel_bias, 1.0 / MGAL),
-        "initgyrscale": [0.0] * 3,
-        "initaccscale": [0.0] * 3,
+        "initgyrscale": vec(init.gyro_scale, 1.0 / PPM),
+        "initaccscale": vec(init.accel_scale, 1.0 / PPM),
         "initposstd": vec(init.std_pos_ned),
         "initvelstd": vec(init.std_v_n),
         "initattstd": vec(np.rad2deg(init.std_euler)),
@@ -232,6 +233,10 @@ def write_dataset(dataset: Dataset, folder, name: str | None = None) -> Path:
         config["initbgstd"] = vec(init.std_gyro_bias, 1.0 / DEG_PER_H)
     if init.std_accel_bias is not None:
         config["initbastd"] = vec(init.std_accel_bias, 1.0 / MGAL)
+    if init.std_gyro_scale is not None:
+        config["initsgstd"] = vec(init.std_gyro_scale, 1.0 / PPM)
+    if init.std_accel_scale is not None:
+        config["initsastd"] = vec(init.std_accel_scale, 1.0 / PPM)
     truth = dataset.truth
     if truth is not None:
         truth_file = config["truthpath"] = f"{name}_truth.nav"
@@ -363,8 +368,10 @@ def load_config(yaml_path) -> Dataset:
     """KF-GINS YAML configuration -> Dataset, everything converted once to SI.
 
     KF-GINS units: initpos [deg, deg, m], initatt/initattstd [deg], initgyrbias/initbgstd/gbstd [deg/h],
-    initaccbias/initbastd/abstd [mGal], arw [deg/sqrt(h)], vrw [m/s/sqrt(h)], corrtime [h], antlever [m, FRD].
-    Scale-factor keys are accepted and ignored (zennav has 15 states). zennav extensions: gnssvelpath,
+    initaccbias/initbastd/abstd [mGal], initgyrscale/initaccscale/initsgstd/initsastd/gsstd/asstd [ppm], arw
+    [deg/sqrt(h)], vrw [m/s/sqrt(h)], corrtime [h] (of the biases and the scale factors), antlever [m, FRD].
+    Nonzero scale-factor uncertainties make the filter estimate them (21 states, as KF-GINS; NavConfig.scale_factors
+    turns that off); absent or zero ones leave it at 15 states. zennav extensions: gnssvelpath,
     truthpath (.nav), truthinfo {fields, source, at_antenna}, imunoise.acccorrtime [h].
     The time window keeps IMU samples in [starttime, endtime] and GNSS epochs in (starttime, endtime], as KF-GINS;
     the initial state is at the first IMU sample of the window.
@@ -389,6 +396,10 @@ def load_config(yaml_path) -> Dataset:
         accel_bias_std=cfg.per_sensor("imunoise", "abstd") * MGAL,
         gyro_bias_tau=tau_g,
         accel_bias_tau=tau_g if acc_tau_h is None else acc_tau_h * 3600.0,
+        gyro_scale_std=_optional_per_sensor(cfg, "gsstd") * PPM,
+        accel_scale_std=_optional_per_sensor(cfg, "asstd") * PPM,
+        gyro_scale_tau=tau_g,
+        accel_scale_tau=tau_g if acc_tau_h is None else acc_tau_h * 3600.0,
     )
     if tau_g <= 0 or noise.accel_bias_tau <= 0:
         raise cfg.error(("imunoise", "corrtime"), "correlation time must be positive")
@@ -397,6 +408,11 @@ def load_config(yaml_path) -> Dataset:
     # KF-GINS: without initbgstd/initbastd the initial bias std is the bias instability (gbstd/abstd), per axis.
     bg_std = cfg.vector("imunoise", "gbstd") if bg_std is None else bg_std
     ba_std = cfg.vector("imunoise", "abstd") if ba_std is None else ba_std
+    sg_std = cfg.vector("initsgstd", required=False)
+    sa_std = cfg.vector("initsastd", required=False)
+    for key, v in (("initsgstd", sg_std), ("initsastd", sa_std)):
+        if v is not None and (v < 0).any():
+            raise cfg.error((key,), f"must not be negative, got {v.tolist()}")
     pos = cfg.vector("initpos")
     initial_at = partial(  # the initial state, at the first IMU sample of the window
         InitialState,
@@ -410,13 +426,12 @@ def load_config(yaml_path) -> Dataset:
         accel_bias=cfg.vector("initaccbias") * MGAL,
         std_gyro_bias=bg_std * DEG_PER_H,
         std_accel_bias=ba_std * MGAL,
+        gyro_scale=_optional_vector(cfg, "initgyrscale") * PPM,
+        accel_scale=_optional_vector(cfg, "initaccscale") * PPM,
+        std_gyro_scale=None if sg_std is None else sg_std * PPM,
+        std_accel_scale=None if sa_std is None else sa_std * PPM,
     )
     lever_arm_b = cfg.vector("antlever")
-    for key in ("initgyrscale", "initaccscale", "initsgstd", "initsastd", ("imunoise", "gsstd"), ("imunoise", "asstd")):
-        keys = key if isinstance(key, tuple) else (key,)
-        if cfg.get(*keys, required=False) is not None:
-            cfg.vector(*keys)
-            cfg.notes.append(f"{'.'.join(keys)} ignored: zennav estimates no scale factors (15 states)")
     info = cfg.get("truthinfo", required=False) or {}
     fields = info.get("fields", list(TRUTH_FIELDS)) if isinstance(info, dict) else None
     if not isinstance(fields, list) or "pos" not in fields or not set(fields) <= set(TRUTH_FIELDS):
@@ -449,3 +464,14 @@ def load_config(yaml_path) -> Dataset:
         "remarks": cfg.notes,
     }
     return Dataset(yaml_path.stem, imu, gnss, config, initial, truth, notes)
+
+
+def _optional_vector(cfg: _Config, key: str) -> np.ndarray:
+    """A 3-vector that KF-GINS configurations may leave out (zeros then)."""
+    v = cfg.vector(key, required=False)
+    return np.zeros(3) if v is None else v
+
+
+def _optional_per_sensor(cfg: _Config, key: str) -> float:
+    """An imunoise scale-factor value that may be left out (0: no scale-factor states)."""
+    return 0.0 if cfg.get("imunoise", key, required=False) is None else cfg.per_sensor("imunoise", key)

@@ -1,4 +1,5 @@
-"""15-state error-state Kalman filter of the strapdown INS (error model in NED, psi-angle form).
+"""Error-state Kalman filter of the strapdown INS (error model in NED, psi-angle form): the 15 INS states below,
+and after them any augmented states (``Navigator.add_states``: IMU scale factors, an odometer scale, ...).
 
 Error state x = [dr_n (3, NED metres), dv_n (3, m/s), phi (3, rad), dbg (3, rad/s), dba (3, m/s^2)]
 with the definitions (estimate minus truth):
@@ -10,6 +11,11 @@ Continuous model (Shin 2005, eqs. 3.48-3.55; Groves 2013 section 14.2.4 in local
     dv'   = F_vr dr + F_vv dv + [f_n x] phi - C_nb dba + C_nb w_a
     phi'  = F_pr dr + F_pv dv - [omega_in_n x] phi + C_nb dbg - C_nb w_g
     dbg'  = -dbg / tau_g + w_bg,  dba' = -dba / tau_a + w_ba
+IMU scale factors (the 21-state option, as KF-GINS): measured = (1 + s) true + b per axis, compensated
+omega = (omega_meas - bg_hat) / (1 + sg_hat), so with dsg = sg_hat - sg, dsa = sa_hat - sa (Groves 2013,
+chapter 4's IMU error model in the error equations of section 14.2.4; KF-GINS's 21-state model, with our
+estimate-minus-truth signs):
+    dv'  += -C_nb diag(f_b) dsa,   phi' += C_nb diag(omega_ib_b) dsg,   dsg' = -dsg / tau + w (Gauss-Markov)
 Discretisation: Phi = I + F dt + (F dt)^2 / 2, Qd = (Phi Q Phi' + Q) dt / 2 (trapezoid).
 Measurement update in Joseph form with chi-square innovation gating.
 """
@@ -112,6 +118,13 @@ def initial_covariance(initial: InitialState, config: NavConfig) -> np.ndarray:
     return P0
 
 
+def scale_factor_coupling(F: np.ndarray, C_nb: np.ndarray, f_b, omega_ib_b, sg: slice, sa: slice) -> None:
+    """Fill the columns of the gyro (sg) and accelerometer (sa) scale-factor states in F (see the module
+    docstring): specific force f_b [m/s^2] and angular rate omega_ib_b [rad/s], body frame, over the step."""
+    F[VEL, sa] = -C_nb * np.asarray(f_b, dtype=float)[None, :]
+    F[ATT, sg] = C_nb * np.asarray(omega_ib_b, dtype=float)[None, :]
+
+
 def process_noise_psd(noise: ImuNoise) -> np.ndarray:
     """Diagonal of the continuous process-noise PSD Q in error-state coordinates.
 
@@ -129,13 +142,14 @@ def process_noise_psd(noise: ImuNoise) -> np.ndarray:
 
 def discretize(F: np.ndarray, q_psd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Transition Phi and process noise Qd over dt [s] (second-order Phi, trapezoidal Qd)."""
+    n = F.shape[0]
     Fdt = F * dt
     Phi = Fdt @ Fdt
     Phi *= 0.5
     Phi += Fdt
-    Phi.ravel()[:: N_STATES + 1] += 1.0
+    Phi.ravel()[:: n + 1] += 1.0
     Qd = (Phi * q_psd) @ Phi.T  # Phi diag(q) Phi'
-    Qd.ravel()[:: N_STATES + 1] += q_psd
+    Qd.ravel()[:: n + 1] += q_psd
     Qd *= 0.5 * dt
     return Phi, Qd
 
@@ -150,7 +164,7 @@ class UpdateResult:
     d2: float
     test_ratio: float
     fused: bool
-    dx: np.ndarray = field(default_factory=lambda: np.zeros(N_STATES))
+    dx: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 class ErrorStateKF:
@@ -169,6 +183,7 @@ class ErrorStateKF:
         """Joseph-form update with measurement z = H x + v, v ~ N(0, R).
 
         gate: chi-square threshold on d2 (None: always fuse). Rejected updates leave P unchanged.
+        H has one column per state of P.
         gain_states: correct only these states (Schmidt "consider" update: the other rows of the gain are zero;
         the Joseph form keeps P right for any gain)."""
         PHt = self.P @ H.T
@@ -177,14 +192,15 @@ class ErrorStateKF:
         S_inv_z = np.linalg.solve(S, z)
         d2 = float(z @ S_inv_z)
         ratio = d2 / gate if gate else 0.0
+        n = self.P.shape[0]
         if gate is not None and not d2 <= gate:
-            return UpdateResult(z, S, d2, ratio, False)
+            return UpdateResult(z, S, d2, ratio, False, np.zeros(n))
         K = np.linalg.solve(S, PHt.T).T
         if gain_states is not None:
-            keep = np.zeros(N_STATES, dtype=bool)
+            keep = np.zeros(n, dtype=bool)
             keep[gain_states] = True
             K[~keep] = 0.0
-        I_KH = np.eye(N_STATES) - K @ H
+        I_KH = np.eye(n) - K @ H
         P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
         self.P = 0.5 * (P + P.T)
         return UpdateResult(z, S, d2, ratio, True, K @ z)

@@ -1,4 +1,6 @@
-"""The navigation engine: strapdown mechanization + 15-state error-state Kalman filter, aided by a list of sources
+"""The navigation engine: strapdown mechanization + error-state Kalman filter (15 INS states, augmented states after
+them: the IMU scale factors of the 21-state option, a source's own states through ``add_states``), aided by a list
+of sources
 (zennav.nav.aid: GNSS position and velocity, learned pseudo-measurements). Step-wise API (``on_imu``, ``on_gnss``,
 ``on_correction``), no transport: the same object serves the ins service, replay, benchmarks and tests.
 
@@ -11,6 +13,11 @@ GNSS fixes are queued by ``on_gnss`` and fused when the IMU stream reaches their
 contains a fix time is split there (increments shared linearly), so the update happens at the exact fix time. A
 fix older than the current IMU time is fused at once with its position propagated by the velocity over the
 (sub-interval) age.
+
+Augmented states (``add_states``): their values live here (``aug_value``), estimate minus truth, corrected
+additively by the feedback (value -= dx); Gauss-Markov with their own time constant; no coupling into the INS
+states except the scale factors, which the engine applies to the IMU increments: omega = (omega_meas - bg) /
+(1 + sg), the same for the accelerometer (eskf's module docstring).
 
 ``get_state`` / ``set_state``: everything that determines the future output, as plain numbers, strings, lists and
 dicts (msgpack-safe), restored bit for bit into a Navigator built with the same config and initial state.
@@ -40,6 +47,7 @@ from .eskf import (
     error_model,
     initial_covariance,
     process_noise_psd,
+    scale_factor_coupling,
 )
 from .learning import LearningTap, LearnQuery, LearnSample
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_to_quat
@@ -51,7 +59,7 @@ __all__ = ["AidReport", "NavSolution", "Navigator"]
 log = logging.getLogger("zennav.nav")
 
 LEARN_SETTLE_S = 10.0  # no training samples for this long after an outage or a covariance reset [s]
-STATE_FORMAT = "zennav.nav.Navigator/1"
+STATE_FORMAT = "zennav.nav.Navigator/2"
 
 
 @dataclass
@@ -100,6 +108,7 @@ class Navigator:
         self._omega_dt: tuple[tuple[float, ...], float] = ((0.0, 0.0, 0.0), 1.0)
         self._cov_dt = 0.0
         self._cov_dvel = [0.0, 0.0, 0.0]
+        self._cov_dtheta = [0.0, 0.0, 0.0]
         self._imu_sample: tuple[list, list, float] = ([0.0] * 3, [0.0] * 3, 1.0)  # raw increments, interval [s]
         self._pending: list[GnssFix] = []
         self._reports: list[AidReport] = []
@@ -107,6 +116,14 @@ class Navigator:
         self._dx_since_fix = np.zeros(N_STATES)  # corrections of the GNSS fix being fused
         self.last_dx = np.zeros(N_STATES)  # correction of the last fused update
         self._learn_start_t_ns = self.t_ns + int(config.learn_after_s * NS)
+        self._aug_x = np.zeros(0)  # values of the augmented states (estimate minus truth convention as dx)
+        self._aug_decay = np.zeros(0)  # their F diagonal: -1/tau [1/s] (0: random constant / random walk)
+        self.aug_blocks: dict[str, slice] = {}
+        self._scale: tuple[slice, slice] | None = None  # gyro and accelerometer scale factors (21 states)
+        if config.scale_factors and (config.imu_noise.has_scale_factors() or any(
+                std is not None and np.any(np.asarray(std) > 0)
+                for std in (initial.std_gyro_scale, initial.std_accel_scale))):
+            self._add_scale_factor_states(initial)
         self.sources: dict[str, AidSource] = {}
         self._inputs: dict[str, list[AidSource]] = {"gnss": []}
         self._step_sources: list[AidSource] = []
@@ -178,10 +195,46 @@ class Navigator:
         if source.name in self.sources:
             raise ValueError(f"an aiding source named {source.name!r} exists")
         self.sources[source.name] = source
+        source.attach(self)
         for kind in source.inputs:
             self._inputs.setdefault(kind, []).append(source)
         if type(source).on_step is not AidSource.on_step:
             self._step_sources.append(source)
+
+    def add_states(self, name: str, std0, q_psd, tau_s: float, x0=None) -> slice:
+        """Append len(std0) augmented states to the error state: initial 1-sigma std0 and value x0 (default 0),
+        Gauss-Markov with time constant tau_s [s] (math.inf: random constant, or random walk with q_psd) and
+        process-noise PSD q_psd [unit^2/s]. Returns their slice in the error state (H columns, dx, P). Call it
+        before the first IMU sample; the states are part of get_state."""
+        if name in self.aug_blocks:
+            raise ValueError(f"augmented states named {name!r} exist")
+        std0 = np.atleast_1d(np.asarray(std0, dtype=float))
+        k, n = len(std0), self.n_states
+        q = np.broadcast_to(np.asarray(q_psd, dtype=float), (k,))
+        if not (np.all(np.isfinite(std0)) and np.all(std0 >= 0) and np.all(np.isfinite(q)) and np.all(q >= 0)
+                and tau_s > 0):
+            raise ValueError(f"augmented states {name!r}: std0 and q_psd must be finite and >= 0, tau_s > 0")
+        sl = slice(n, n + k)
+        P = np.zeros((n + k, n + k))
+        P[:n, :n] = self.kf.P
+        P[sl, sl] = np.diag(np.square(std0))
+        self.kf.P = P
+        self._q_psd = np.concatenate([self._q_psd, q])
+        self._aug_decay = np.concatenate([self._aug_decay, np.full(k, 0.0 if math.isinf(tau_s) else -1.0 / tau_s)])
+        self._aug_x = np.concatenate([self._aug_x, np.zeros(k) if x0 is None else np.asarray(x0, dtype=float)])
+        self._dx_since_fix = np.zeros(n + k)
+        self.last_dx = np.zeros(n + k)
+        self.aug_blocks[name] = sl
+        return sl
+
+    def aug_value(self, sl: slice) -> np.ndarray:
+        """The current values of augmented states (a view; read only), sl as returned by add_states."""
+        return self._aug_x[sl.start - N_STATES:sl.stop - N_STATES]
+
+    @property
+    def n_states(self) -> int:
+        """Length of the error state: 15 INS states plus the augmented ones."""
+        return self.kf.P.shape[0]
 
     def on_attitude(self, t_ns: int, roll: float, pitch: float, std: float) -> bool:
         """Roll and pitch [rad] with their 1-sigma std [rad] from an attitude source (e.g. the zennav.attitude filter)
@@ -228,18 +281,17 @@ class Navigator:
     def P(self) -> np.ndarray:
         return self.kf.P
 
-    @property
-    def n_states(self) -> int:
-        """Size of the error state (until the engine's augmented-state API lands: the 15 INS states)."""
-        return self.kf.P.shape[0]
-
     def imu_rates(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Bias-corrected body rate omega_ib_b [rad/s] and specific force f_b [m/s^2] of the IMU sample being
         processed and its interval [s] (for the sources' on_step; the sample's whole interval, however a GNSS fix
         split it)."""
         dtheta, dvel, dt = self._imu_sample
-        return (np.array(dtheta) / dt - np.array(self.gyro_bias), np.array(dvel) / dt - np.array(self.accel_bias),
-                dt)
+        omega_ib_b = np.array(dtheta) / dt - np.array(self.gyro_bias)
+        f_b = np.array(dvel) / dt - np.array(self.accel_bias)
+        if self._scale is not None:
+            omega_ib_b /= 1.0 + self.aug_value(self._scale[0])
+            f_b /= 1.0 + self.aug_value(self._scale[1])
+        return omega_ib_b, f_b, dt
 
     def solution(self) -> NavSolution:
         s = self.state
@@ -266,6 +318,8 @@ class Navigator:
         """The engine's one measurement update of a source's measurement: the source's adaptive R (gated only),
         Joseph form with the chi-square gate, feedback; counted ({name}_fused / {name}_gate) and reported."""
         name, z, H, R = source.name, m.z, m.H, m.R
+        if H.shape[1] < self.n_states:  # a model of the INS states only: the augmented states do not enter
+            H = np.hstack([H, np.zeros((H.shape[0], self.n_states - H.shape[1]))])
         gate = self.gate_threshold(len(z)) if m.gated else None
         est = source.adaptive if m.gated else None
         if est is not None:
@@ -302,11 +356,21 @@ class Navigator:
             return
         s = self.state
         f_b = np.array(self._cov_dvel) / dt
-        F = error_model(s.lat, s.h, (s.vn, s.ve, s.vd), s.C_nb, f_b, self.config.imu_noise)
+        C_nb = s.C_nb
+        F = error_model(s.lat, s.h, (s.vn, s.ve, s.vd), C_nb, f_b, self.config.imu_noise)
+        n = self.n_states
+        if n > N_STATES:
+            F_aug = np.zeros((n, n))
+            F_aug[:N_STATES, :N_STATES] = F
+            F_aug.ravel()[N_STATES * (n + 1)::n + 1] = self._aug_decay
+            if self._scale is not None:
+                scale_factor_coupling(F_aug, C_nb, f_b, np.array(self._cov_dtheta) / dt, *self._scale)
+            F = F_aug
         Phi, Qd = discretize(F, self._q_psd, dt)
         self.kf.propagate(Phi, Qd)
         self._cov_dt = 0.0
         self._cov_dvel = [0.0, 0.0, 0.0]
+        self._cov_dtheta = [0.0, 0.0, 0.0]
         self._update_stds()
 
     def feedback(self, dx: np.ndarray) -> None:
@@ -324,12 +388,21 @@ class Navigator:
         s.q0, s.q1, s.q2, s.q3 = (float(x) for x in q)
         self.gyro_bias = [b - d for b, d in zip(self.gyro_bias, dx[BG].tolist())]
         self.accel_bias = [b - d for b, d in zip(self.accel_bias, dx[BA].tolist())]
+        if len(dx) > N_STATES:
+            self._aug_x -= dx[N_STATES:]
         self._update_stds()
 
     def start_filter(self, P0: np.ndarray, t_ns: int) -> None:
-        """End of coarse alignment: the filter starts at t_ns with covariance P0."""
+        """End of coarse alignment: the filter starts at t_ns with covariance P0 of the INS states (the augmented
+        states keep their variances, uncorrelated with the new INS states)."""
+        n = self.n_states
+        if n > N_STATES:
+            P = np.zeros((n, n))
+            P[:N_STATES, :N_STATES] = P0
+            P[N_STATES:, N_STATES:] = self.kf.P[N_STATES:, N_STATES:]
+            P0 = P
         self.kf.P = P0
-        self._cov_dt, self._cov_dvel = 0.0, [0.0, 0.0, 0.0]
+        self._cov_dt, self._cov_dvel, self._cov_dtheta = 0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
         self.hold_learning(t_ns)
         self._update_stds()
 
@@ -352,6 +425,10 @@ class Navigator:
         bg, ba = self.gyro_bias, self.accel_bias
         dth = (dtheta[0] - bg[0] * dt, dtheta[1] - bg[1] * dt, dtheta[2] - bg[2] * dt)
         dv = (dvel[0] - ba[0] * dt, dvel[1] - ba[1] * dt, dvel[2] - ba[2] * dt)
+        if self._scale is not None:
+            sg, sa = (self.aug_value(sl).tolist() for sl in self._scale)
+            dth = (dth[0] / (1.0 + sg[0]), dth[1] / (1.0 + sg[1]), dth[2] / (1.0 + sg[2]))
+            dv = (dv[0] / (1.0 + sa[0]), dv[1] / (1.0 + sa[1]), dv[2] / (1.0 + sa[2]))
         if self.alignment.coarse:
             self._advance_coarse(t_ns, dth, dv, dt)
             return
@@ -365,6 +442,10 @@ class Navigator:
         cd[0] += dv[0]
         cd[1] += dv[1]
         cd[2] += dv[2]
+        ct = self._cov_dtheta
+        ct[0] += dth[0]
+        ct[1] += dth[1]
+        ct[2] += dth[2]
         self._omega_dt = (dth, dt)
         if self._cov_dt >= self.config.cov_interval_s:
             self.propagate_covariance()
@@ -389,11 +470,25 @@ class Navigator:
         sd = np.sqrt(np.diag(self.kf.P))
         self.std_pos_ned, self.std_v_n, self.std_att = sd[POS], sd[VEL], sd[ATT]
 
+    def _add_scale_factor_states(self, initial: InitialState) -> None:
+        """The 21-state option: gyro and accelerometer scale factors as Gauss-Markov states (ImuNoise), their
+        initial values and 1-sigma from the initial state (default: the ImuNoise 1-sigma)."""
+        noise = self.config.imu_noise
+        blocks = []
+        for name, std_gm, tau, x0, std0 in (
+            ("gyro_scale", noise.gyro_scale_std, noise.gyro_scale_tau, initial.gyro_scale, initial.std_gyro_scale),
+            ("accel_scale", noise.accel_scale_std, noise.accel_scale_tau, initial.accel_scale,
+             initial.std_accel_scale),
+        ):
+            std0 = np.full(3, std_gm) if std0 is None else np.asarray(std0, dtype=float)
+            blocks.append(self.add_states(name, std0, 2.0 * std_gm**2 / tau, tau, x0))
+        self._scale = (blocks[0], blocks[1])
+
     def _fuse_gnss(self, fix: GnssFix) -> None:
         """A fix at the engine's time: each GNSS source in turn (position, then velocity), then the alignment
         check and the learning tap."""
         self.propagate_covariance()
-        self._dx_since_fix = np.zeros(N_STATES)
+        self._dx_since_fix = np.zeros(self.n_states)
         dth, dt = self._omega_dt
         ctx = FixContext(fix, (self.t_ns - fix.t_ns) / NS, np.array(dth) / dt, self.alignment.coarse)
         for src in self._inputs["gnss"]:
@@ -427,6 +522,8 @@ class Navigator:
             "omega_dt": [list(self._omega_dt[0]), self._omega_dt[1]],
             "cov_dt": self._cov_dt,
             "cov_dvel": list(self._cov_dvel),
+            "cov_dtheta": list(self._cov_dtheta),
+            "aug": {"blocks": {k: [v.start, v.stop] for k, v in self.aug_blocks.items()}, "x": self._aug_x.tolist()},
             "pending": [_fix_to_map(f) for f in self._pending],
             "reports": [vars(r).copy() for r in self._reports],
             "dx_since_fix": self._dx_since_fix.tolist(),
@@ -443,8 +540,11 @@ class Navigator:
         different set of sources (another config)."""
         if state.get("format") != STATE_FORMAT:
             raise ValueError(f"not a {STATE_FORMAT} state: {state.get('format')!r}")
-        if set(state["sources"]) != set(self.sources) or (state["tap"] is None) != (self.tap is None):
-            raise ValueError("the state's aiding sources or learning differ from this navigator's configuration")
+        blocks = {k: [v.start, v.stop] for k, v in self.aug_blocks.items()}
+        if (set(state["sources"]) != set(self.sources) or (state["tap"] is None) != (self.tap is None)
+                or {k: list(v) for k, v in state["aug"]["blocks"].items()} != blocks):
+            raise ValueError("the state's aiding sources, augmented states or learning differ from this navigator's "
+                             "configuration")
         self.t_ns = int(state["t_ns"])
         self.state = NavState(*(float(x) for x in state["nav"]))
         self.gyro_bias = [float(x) for x in state["gyro_bias"]]
@@ -456,6 +556,8 @@ class Navigator:
         self._omega_dt = (tuple(float(x) for x in state["omega_dt"][0]), float(state["omega_dt"][1]))
         self._cov_dt = float(state["cov_dt"])
         self._cov_dvel = [float(x) for x in state["cov_dvel"]]
+        self._cov_dtheta = [float(x) for x in state["cov_dtheta"]]
+        self._aug_x = np.array(state["aug"]["x"], dtype=float)
         self._pending = [_fix_from_map(f) for f in state["pending"]]
         self._reports = [AidReport(**r) for r in state["reports"]]
         self._dx_since_fix = np.array(state["dx_since_fix"], dtype=float)

@@ -168,7 +168,9 @@ class Truth:
 @dataclass
 class ImuNoise:
     """IMU error model, SI: angle random walk [rad/sqrt(s)], velocity random walk [m/s/sqrt(s)],
-    bias instability as first-order Gauss-Markov 1-sigma [rad/s, m/s^2] with correlation times [s]."""
+    bias instability as first-order Gauss-Markov 1-sigma [rad/s, m/s^2] with correlation times [s];
+    scale-factor errors (dimensionless, 1e-6 = 1 ppm) as first-order Gauss-Markov 1-sigma with correlation
+    times [s]: 0 says the IMU description has none (15 states; see NavConfig.scale_factors)."""
 
     arw: float = np.deg2rad(0.2) / 60.0
     vrw: float = 0.1 / 60.0
@@ -176,6 +178,14 @@ class ImuNoise:
     accel_bias_std: float = 1e-3 * 9.80665
     gyro_bias_tau: float = 3600.0
     accel_bias_tau: float = 3600.0
+    gyro_scale_std: float = 0.0
+    accel_scale_std: float = 0.0
+    gyro_scale_tau: float = 3600.0
+    accel_scale_tau: float = 3600.0
+
+    def has_scale_factors(self) -> bool:
+        """Whether the description gives the scale factors an uncertainty."""
+        return self.gyro_scale_std > 0.0 or self.accel_scale_std > 0.0
 
 
 @dataclass
@@ -199,6 +209,10 @@ class InitialState:
     std_gyro_bias: np.ndarray | None = None  # None: the ImuNoise bias std
     std_accel_bias: np.ndarray | None = None
     heading_known: bool = True
+    gyro_scale: np.ndarray = field(default_factory=lambda: np.zeros(3))  # initial scale-factor errors [-]
+    accel_scale: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    std_gyro_scale: np.ndarray | None = None  # None: the ImuNoise scale-factor std
+    std_accel_scale: np.ndarray | None = None
 
     def heading_is_known(self) -> bool:
         """True when the yaw can start a small-angle error-state filter (see the class docstring)."""
@@ -302,6 +316,7 @@ class NavConfig:
     odo_scale_tau_s: float = 3600.0  # its Gauss-Markov correlation time [s]
     odo_max_age_s: float = 0.1  # a sample older than this behind the IMU time is not fused [s]
     odo_max_speed_mps: float = 80.0  # a sample faster than this (either sign) is malformed [m/s]
+    scale_factors: bool = True  # estimate gyro/accel scale factors (21 states) when the IMU description has them
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 

@@ -8,7 +8,7 @@ IMU grades are named presets in human units, converted to SI once here.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from .trajectory import make_trajectory
 _DEG_PER_H = math.radians(1.0) / 3600.0  # rad/s
 _PER_RT_H = 1.0 / 60.0  # 1 / sqrt(h) in 1 / sqrt(s)
 _MG = 1e-3 * earth.G0  # m/s^2
+_PPM = 1e-6  # scale factor [-]
 
 
 @dataclass(frozen=True)
@@ -67,15 +68,18 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
                  gnss_rate_hz: float = 1.0, seed: int = 0, imu_grade: str = "mems", gnss_std_ned=(0.5, 0.5, 1.0),
                  gnss_vel_std: float | None = 0.05, lever_arm_b=(0.5, 0.2, -1.0), perturb_initial: bool = True,
                  start_llh_deg=(30.53, 114.36, 30.0), t0_s: float = 356400.0, gnss_fix: FixType | None = None,
-                 num_sats: int = 12, odo_rate_hz: float = 10.0, odo_scale_error: float = 0.02,
-                 odo_std_mps: float = 0.05, **kw) -> Dataset:
+                 num_sats: int = 12, scale_ppm: tuple[float, float] = (0.0, 0.0), odo_rate_hz: float = 10.0,
+                 odo_scale_error: float = 0.02, odo_std_mps: float = 0.05, **kw) -> Dataset:
     """Simulated dataset of a "car", "multirotor" or "static" trajectory (kw go to its generator in
     zennav.sim.trajectory, e.g. max_speed, or euler [rad] / yaw_rate [rad/s] for "static").
 
     IMU samples at imu_rate_hz from t0_s (GPS seconds, the first sample) over duration_s; GNSS fixes of the
     antenna at lever_arm_b [m, FRD] at gnss_rate_hz on whole-second-aligned epochs with white noise
     gnss_std_ned [m] and gnss_vel_std [m/s] (None: no velocity); fix type RTK_FIXED when every std is
-    <= 0.1 m, else SINGLE, unless gnss_fix is given. start_llh_deg: (lat [deg], lon [deg], h [m]).
+    <= 0.1 m, else SINGLE, unless gnss_fix is given. scale_ppm: 1-sigma of the gyro and accelerometer
+    scale-factor errors [ppm], drawn once per axis (constant) and told to the filter (ImuNoise scale std with the
+    bias correlation time: a KF-GINS-style 21-state filter estimates them); (0, 0): none.
+    start_llh_deg: (lat [deg], lon [deg], h [m]).
     Everything random derives from seed (trajectory, IMU errors, GNSS noise and initial errors each from
     their own stream). The initial state is the truth at the first IMU sample, plus (perturb_initial)
     an error drawn from its stated std. A car also has an odometer at the IMU (odo_rate_hz, scale-factor error
@@ -84,14 +88,20 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
         raise ValueError(f"unknown IMU grade {imu_grade!r}; choose from {sorted(IMU_GRADES)}")
     grade = IMU_GRADES[imu_grade]
     noise = grade.noise()
-    ss_traj, ss_imu, ss_gnss, ss_init, ss_odo = np.random.SeedSequence(seed).spawn(5)  # the first 4 as spawn(4)
+    ss_traj, ss_imu, ss_gnss, ss_init, ss_scale, ss_odo = np.random.SeedSequence(seed).spawn(6)  # first 5: spawn(5)'s
     start_llh = np.array([math.radians(start_llh_deg[0]), math.radians(start_llh_deg[1]), float(start_llh_deg[2])])
     traj = make_trajectory(kind, duration_s, ss_traj, start_llh, **kw)
 
     t0_ns = int(round(t0_s * NS))
     n_imu = int(round(duration_s * imu_rate_hz)) + 1
     imu_t_ns = t0_ns + np.arange(n_imu, dtype=np.int64) * int(round(NS / imu_rate_hz))
-    imu, errors = simulate_imu(traj, imu_t_ns, t0_ns, noise, np.random.default_rng(ss_imu))
+    scale_draw = np.random.default_rng(ss_scale).standard_normal((2, 3))
+    gyro_scale, accel_scale = scale_draw[0] * scale_ppm[0] * _PPM, scale_draw[1] * scale_ppm[1] * _PPM
+    if any(scale_ppm):
+        noise = replace(noise, gyro_scale_std=scale_ppm[0] * _PPM, accel_scale_std=scale_ppm[1] * _PPM,
+                        gyro_scale_tau=noise.gyro_bias_tau, accel_scale_tau=noise.accel_bias_tau)
+    imu, errors = simulate_imu(traj, imu_t_ns, t0_ns, noise, np.random.default_rng(ss_imu), gyro_scale=gyro_scale,
+                               accel_scale=accel_scale)
     if gnss_fix is None:
         gnss_fix = FixType.RTK_FIXED if max(gnss_std_ned) <= 0.1 else FixType.SINGLE
     gnss = simulate_gnss(traj, _gnss_times(t0_ns, int(imu_t_ns[-1]), gnss_rate_hz), t0_ns, lever_arm_b, gnss_std_ned,
@@ -127,6 +137,7 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
         "initial_error": {"pos_ned_m": err_pos_ned.tolist(), "v_n_mps": err_v_n.tolist(),
                           "euler_rad": err_euler.tolist()},
         "imu_errors": errors,
+        "gyro_scale": gyro_scale, "accel_scale": accel_scale,  # true scale-factor errors [-] per axis
         "trajectory": traj,
     }
     odometer = None

@@ -78,10 +78,11 @@ def _seconds(t_ns, t0_ns: int) -> np.ndarray:
 
 
 def simulate_imu(traj: Trajectory, t_ns, t0_ns: int, noise: ImuNoise, rng: np.random.Generator,
-                 gyro_bias_offset=(0.0, 0.0, 0.0), accel_bias_offset=(0.0, 0.0, 0.0), n_nodes: int = 3
-                 ) -> tuple[ImuData, ImuErrors]:
+                 gyro_bias_offset=(0.0, 0.0, 0.0), accel_bias_offset=(0.0, 0.0, 0.0), n_nodes: int = 3,
+                 gyro_scale=(0.0, 0.0, 0.0), accel_scale=(0.0, 0.0, 0.0)) -> tuple[ImuData, ImuErrors]:
     """IMU samples at uniformly spaced t_ns (each the end of its interval, the first one's interval
-    starting one period earlier): ideal increments + bias * dt + white noise.
+    starting one period earlier): (1 + scale) * ideal increments + bias * dt + white noise, scale the constant
+    scale-factor errors per axis [-] (gyro_scale, accel_scale).
 
     Bias = optional constant offset [rad/s, m/s^2] + Gauss-Markov(noise.*_bias_std, noise.*_bias_tau)
     drawn from its stationary distribution, so its value at the first sample is the turn-on bias.
@@ -97,6 +98,8 @@ def simulate_imu(traj: Trajectory, t_ns, t0_ns: int, noise: ImuNoise, rng: np.ra
     gyro_bias = np.asarray(gyro_bias_offset, float) + gauss_markov(n, dt, noise.gyro_bias_std, noise.gyro_bias_tau, rng)
     accel_bias = np.asarray(accel_bias_offset, float) + gauss_markov(n, dt, noise.accel_bias_std,
                                                                      noise.accel_bias_tau, rng)
+    dtheta *= 1.0 + np.asarray(gyro_scale, dtype=float)
+    dvel *= 1.0 + np.asarray(accel_scale, dtype=float)
     dtheta += gyro_bias * dt + noise.arw * np.sqrt(dt) * rng.standard_normal((n, 3))
     dvel += accel_bias * dt + noise.vrw * np.sqrt(dt) * rng.standard_normal((n, 3))
     return ImuData(t_ns, dtheta, dvel), ImuErrors(gyro_bias, accel_bias)

@@ -8,8 +8,8 @@ odo_scale_psd, time constant odo_scale_tau_s; its value k_hat, error k_hat - k).
 (Shin 2005, section 5.2; Niu et al., KF-GINS, GPS Solutions 29, 2025). Samples come through
 ``Navigator.on_aid("odometer", OdometerSample)`` and are fused at the engine's time: a sample at most
 odo_max_age_s older than the IMU time (else odo_stale), after the last one (else odo_out_of_order), with a finite
-speed of at most odo_max_speed_mps, signed (negative: reversing) (else odo_malformed), each rejection counted and reported; gated like GNSS; not
-in coarse alignment (odo_coarse, counted only).
+speed of at most odo_max_speed_mps either way (negative: reversing; else odo_malformed), each rejection counted
+and reported; gated like GNSS; not in coarse alignment (odo_coarse, counted only).
 """
 from __future__ import annotations
 
