@@ -301,6 +301,7 @@ class NavConfig:
     zupt_window_s: float = 0.5  # detector window [s]
     zupt_accel_std_mps2: float = 0.1  # still: RMS deviation of f_b from its window mean below this [m/s^2]
     zupt_gyro_rms: float = math.radians(0.5)  # still: RMS of the bias-corrected body rate below this [rad/s]
+    zupt_accel_mps2: float = 0.1  # still: acceleration (horizontal f_n; change of mean f_b) below this [m/s^2]
     zupt_gnss_speed_mps: float = 0.2  # not still while a GNSS velocity of the last second is faster [m/s]
     zupt_ins_speed_mps: float = 2.0  # not still while the INS speed is above this [m/s]
     zupt_enter_s: float = 1.0  # hysteresis: still after the test passed this long; left at the first failure [s]

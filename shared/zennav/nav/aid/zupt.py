@@ -3,10 +3,13 @@
 Detector (after every IMU sample, on the bias-corrected increments of the engine): over the last zupt_window_s,
 the RMS deviation of the specific force f_b from its window mean (the moving-variance detector) and the RMS of the
 body rate (the angular-rate-energy detector) of Skog et al., "Zero-velocity detection - an algorithm evaluation",
-IEEE Trans. Biomed. Eng. 57(11), 2010, each below its threshold; plus, where present, the GNSS speed of the last
-second below zupt_gnss_speed_mps, and the INS's own speed below zupt_ins_speed_mps (a car that stands was seen to
-brake: a smooth cruise, which no IMU can tell from rest, is not taken for a stop). Hysteresis: the vehicle is still
-once the test has passed for zupt_enter_s, and moving at the first sample that fails it.
+IEEE Trans. Biomed. Eng. 57(11), 2010, each below its threshold; the vehicle's own acceleration below
+zupt_accel_mps2, seen as the horizontal part of the window-mean specific force in n and, once still, as the change
+of the window-mean f_b since the standstill began (free of tilt errors) (a car braking or pulling away smoothly
+passes both variance tests; its magnitude |f|, which SHOE watches, barely moves); where present, the GNSS speed of
+the last second below zupt_gnss_speed_mps; and the INS's own speed below zupt_ins_speed_mps (a car that stands was
+seen to brake: a smooth cruise, which no IMU can tell from rest, is not taken for a stop). Hysteresis: the vehicle
+is still once the test has passed for zupt_enter_s, and moving at the first sample that fails it.
 
 While still, every zupt_every_s: the velocity is zero, z = v_n_hat, H = [0, I, 0, 0, 0] (1-sigma zupt_std_mps), and
 with zaru the body rate averaged since the last update equals the earth rate, z = mean(omega_ib_b_hat) -
@@ -44,6 +47,7 @@ class ZeroVelocity(AidSource):
         self.every_ns = int(round(config.zupt_every_s * NS))
         self.max_accel_var = config.zupt_accel_std_mps2**2
         self.max_gyro_ms = config.zupt_gyro_rms**2
+        self.max_accel2 = config.zupt_accel_mps2**2
         self.gnss_speed_mps = config.zupt_gnss_speed_mps
         self.ins_speed_mps = config.zupt_ins_speed_mps
         self.zaru = config.zaru
@@ -55,6 +59,7 @@ class ZeroVelocity(AidSource):
         self.gnss_t_ns, self.gnss_speed = -1, 0.0
         self.still = False
         self.passing_since_ns: int | None = None
+        self.f_still_b = np.zeros(3)  # window-mean specific force when the standstill began [m/s^2]
         self.next_ns = 0
         self.rate_sum, self.rate_dt = [0.0, 0.0, 0.0], 0.0  # bias-corrected angle since the last update [rad, s]
 
@@ -92,6 +97,12 @@ class ZeroVelocity(AidSource):
         if accel_var > self.max_accel_var or s[4] / n > self.max_gyro_ms:
             return False
         v = nav.state
+        f_b = np.array(s[0:3]) / n
+        f_n = v.C_nb @ f_b
+        if f_n[0] * f_n[0] + f_n[1] * f_n[1] > self.max_accel2:
+            return False
+        if self.still and float(np.sum(np.square(f_b - self.f_still_b))) > self.max_accel2:
+            return False
         if math.sqrt(v.vn * v.vn + v.ve * v.ve + v.vd * v.vd) > self.ins_speed_mps:
             return False
         return not (self.gnss_t_ns >= 0 and nav.t_ns - self.gnss_t_ns <= GNSS_SPEED_MAX_AGE_NS
@@ -113,6 +124,7 @@ class ZeroVelocity(AidSource):
             if t_ns - self.passing_since_ns < self.enter_ns:
                 return
             self.still, self.next_ns = True, t_ns
+            self.f_still_b = np.array(self.sums[0:3]) / len(self.window)
             nav.counters["zupt_standstills"] += 1
         if t_ns >= self.next_ns:
             self.next_ns = t_ns + self.every_ns
@@ -140,6 +152,7 @@ class ZeroVelocity(AidSource):
         return {**super().get_state(), "window": [list(w) for w in self.window], "sums": list(self.sums),
                 "gnss": [int(self.gnss_t_ns), float(self.gnss_speed)], "still": bool(self.still),
                 "passing_since_ns": self.passing_since_ns, "next_ns": int(self.next_ns),
+                "f_still_b": self.f_still_b.tolist(),
                 "rate": [list(self.rate_sum), float(self.rate_dt)]}
 
     def set_state(self, state: dict) -> None:
@@ -151,4 +164,5 @@ class ZeroVelocity(AidSource):
         p = state["passing_since_ns"]
         self.passing_since_ns = None if p is None else int(p)
         self.next_ns = int(state["next_ns"])
+        self.f_still_b = np.array(state["f_still_b"], dtype=float)
         self.rate_sum, self.rate_dt = [float(x) for x in state["rate"][0]], float(state["rate"][1])
