@@ -42,27 +42,18 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     constraint after both (None: keep); odometer: a KF-GINS-Matlab ODO file of wheel speeds for the dataset."""
     from .datasets.errors import DataError
     from .datasets.odometer import load_kfgins_odometer
-    from .datasets.registry import load_dataset, vehicle_of
+    from .datasets.registry import load_dataset
     from .learn.loop import make_compensator
     from .metrics import evaluate, format_table, write_outputs
-    from .params import ParamError, constraint_flags, load_filter_params, load_profiles, nav_config
+    from .params import ParamError, nav_config
     from .replay import run_replay
 
     try:
         ds = load_dataset(spec)
-        filter_params = load_filter_params(params)
-        if profile is not None:
-            name = vehicle_of(spec) if profile == "dataset" else profile
-            profiles = load_profiles(params)
-            if name != "none" and name not in profiles:
-                raise ParamError(f"--profile: {name!r} is not a profile of {params or 'deploy/ins.yaml'} "
-                                 f"({', '.join(sorted(profiles))}, dataset or none)")
-            filter_params.update(constraint_flags(profiles.get(name, ())))
-        if constraints is not None:
-            filter_params.update(constraint_flags(constraints))
         if odometer is not None:
             ds.odometer = load_kfgins_odometer(odometer)
-        ds.config = nav_config(ds.config, filter_params)  # the ins's filter on the dataset's sensors
+        # the ins's filter on the dataset's sensors
+        ds.config = nav_config(ds.config, filter_settings(spec, params, profile, constraints))
     except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
     if heading_unknown:
@@ -85,6 +76,26 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     if out is not None and not as_json:
         click.echo(f"wrote {out / 'nav.txt'}, {out / 'nav.csv'}, {out / 'metrics.json'}")
     return metrics
+
+
+def filter_settings(spec: str, params: Path | None, profile: str | None, constraints: list[str] | None) -> dict:
+    """The parameter file's filter settings ({NavConfig field: SI value}) with the vehicle constraints of a
+    profile (a name of the file's profiles, "dataset": the dataset's vehicle, "none": none) and then an explicit
+    list of constraint names, which wins. ParamError for an unknown profile or constraint."""
+    from .datasets.registry import vehicle_of
+    from .params import ParamError, constraint_flags, load_filter_params, load_profiles
+
+    settings = load_filter_params(params)
+    if profile is not None:
+        name = vehicle_of(spec) if profile == "dataset" else profile
+        profiles = load_profiles(params)
+        if name != "none" and name not in profiles:
+            raise ParamError(f"--profile: {name!r} is not a profile of {params or 'deploy/ins.yaml'} "
+                             f"({', '.join(sorted(profiles))}, dataset or none)")
+        settings.update(constraint_flags(profiles.get(name, ())))
+    if constraints is not None:
+        settings.update(constraint_flags(constraints))
+    return settings
 
 
 def _alignment_summary(status: dict, t0_ns: int) -> str:

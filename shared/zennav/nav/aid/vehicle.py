@@ -7,10 +7,10 @@ constraint point, the velocity of that point in v is (Shin 2005, "Estimation tec
 navigation", University of Calgary, section 5.2; Niu et al., "KF-GINS", GPS Solutions 29, 2025, ODO/NHC update):
     v_v = C_vb (C_bn v_n + omega_nb_b x l_b),  omega_nb_b = omega_ib_b - C_bn omega_in_n.
 Error model (eskf.py: C_bn_hat = C_bn (I + [phi x]), v_hat = v + dv, omega_ib_b_hat = omega_ib_b - dbg):
-    v_v_hat ~ v_v + C_vb C_bn dv - C_vb C_bn [v_n x] phi + C_vb [l_b x] dbg
-so H = [0, C_vb C_bn, -C_vb C_bn [v_n x], C_vb [l_b x], 0] (the attitude error through omega_in_n, below 1e-4 m/s
-per rad for metre lever arms, is left out). The mounting and the lever arm are configured (NavConfig
-vehicle_mount_euler, vehicle_lever_b), not estimated.
+    omega_nb_b_hat = omega_nb_b - dbg + C_bn [omega_in_n x] phi,
+    v_v_hat ~ v_v + C_vb C_bn dv - C_vb (C_bn [v_n x] + [l_b x] C_bn [omega_in_n x]) phi + C_vb [l_b x] dbg
+so H = [0, C_vb C_bn, -C_vb (C_bn [v_n x] + [l_b x] C_bn [omega_in_n x]), C_vb [l_b x], 0]. The mounting and the
+lever arm are configured (NavConfig vehicle_mount_euler, vehicle_lever_b), not estimated.
 """
 from __future__ import annotations
 
@@ -41,6 +41,6 @@ class VehicleFrame:
         v_v = C_vn @ v_n + self.C_vb @ np.cross(omega_nb_b, self.lever_b)
         H = np.zeros((3, n_states))
         H[:, VEL] = C_vn
-        H[:, ATT] = -C_vn @ skew(v_n)
+        H[:, ATT] = -C_vn @ skew(v_n) - self.C_vb @ skew(self.lever_b) @ C_bn @ skew(omega_in_n)
         H[:, BG] = self.C_vb @ skew(self.lever_b)
         return v_v, H
