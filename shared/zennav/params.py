@@ -97,6 +97,7 @@ FILTER: dict[str, Param] = {
     "zupt_accel_std_mps2": Param("constraints", "m/s^2"),
     "zupt_gyro_rms": Param("constraints", "deg/s", to_si=_DEG),
     "zupt_accel_mps2": Param("constraints", "m/s^2"),
+    "zupt_accel_change_mps2": Param("constraints", "m/s^2"),
     "zupt_gnss_speed_mps": Param("constraints", "m/s"),
     "zupt_ins_speed_mps": Param("constraints", "m/s"),
     "zupt_enter_s": Param("constraints", "s"),

@@ -281,11 +281,13 @@ class Navigator:
     def P(self) -> np.ndarray:
         return self.kf.P
 
-    def imu_rates(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """Bias-corrected body rate omega_ib_b [rad/s] and specific force f_b [m/s^2] of the IMU sample being
-        processed and its interval [s] (for the sources' on_step; the sample's whole interval, however a GNSS fix
-        split it)."""
+    def imu_rates(self, corrected: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+        """Body rate omega_ib_b [rad/s] and specific force f_b [m/s^2] of the IMU sample being processed, corrected
+        with the estimated biases and scale factors (corrected=False: as measured), and its interval [s] (for the
+        sources' on_step; the sample's whole interval, however a GNSS fix split it)."""
         dtheta, dvel, dt = self._imu_sample
+        if not corrected:
+            return np.array(dtheta) / dt, np.array(dvel) / dt, dt
         omega_ib_b = np.array(dtheta) / dt - np.array(self.gyro_bias)
         f_b = np.array(dvel) / dt - np.array(self.accel_bias)
         if self._scale is not None:

@@ -1,12 +1,14 @@
 """Zero-velocity (ZUPT) and zero-angular-rate (ZARU) updates with automatic standstill detection.
 
-Detector (after every IMU sample, on the bias-corrected increments of the engine): over the last zupt_window_s,
+Detector (after every IMU sample, on the measured specific force, which no update can bend, and the bias-corrected
+body rate): over the last zupt_window_s,
 the RMS deviation of the specific force f_b from its window mean (the moving-variance detector) and the RMS of the
 body rate (the angular-rate-energy detector) of Skog et al., "Zero-velocity detection - an algorithm evaluation",
-IEEE Trans. Biomed. Eng. 57(11), 2010, each below its threshold; the vehicle's own acceleration below
-zupt_accel_mps2, seen as the horizontal part of the window-mean specific force in n and, once still, as the change
-of the window-mean f_b since the standstill began (free of tilt errors) (a car braking or pulling away smoothly
-passes both variance tests; its magnitude |f|, which SHOE watches, barely moves); where present, the GNSS speed of
+IEEE Trans. Biomed. Eng. 57(11), 2010, each below its threshold; the vehicle's own acceleration, seen as the
+horizontal part of the window-mean specific force in n, below zupt_accel_mps2 (tolerant of the tilt error: 0.1 m/s^2
+is 0.6 deg) and, from the start of a standstill until a motion test below fails, as the change of the window-mean
+f_b since that start (free of tilt errors) below zupt_accel_change_mps2 (a car braking or pulling away smoothly
+passes both variance tests; the magnitude |f|, which SHOE watches, barely moves); where present, the GNSS speed of
 the last second below zupt_gnss_speed_mps; and the INS's own speed below zupt_ins_speed_mps (a car that stands was
 seen to brake: a smooth cruise, which no IMU can tell from rest, is not taken for a stop). Hysteresis: the vehicle
 is still once the test has passed for zupt_enter_s, and moving at the first sample that fails it.
@@ -48,18 +50,20 @@ class ZeroVelocity(AidSource):
         self.max_accel_var = config.zupt_accel_std_mps2**2
         self.max_gyro_ms = config.zupt_gyro_rms**2
         self.max_accel2 = config.zupt_accel_mps2**2
+        self.max_accel_change2 = config.zupt_accel_change_mps2**2
         self.gnss_speed_mps = config.zupt_gnss_speed_mps
         self.ins_speed_mps = config.zupt_ins_speed_mps
         self.zaru = config.zaru
         std = [config.zupt_std_mps] * 3 + ([config.zaru_std] * 3 if config.zaru else [])
         self.R = np.diag(np.square(std))
-        # detector window: (t_ns, f_b, |omega|^2) per sample, with running sums of f, |f|^2 and |omega|^2
+        # detector window: (t_ns, measured f_b, |corrected omega|^2) per sample; running sums of f, |f|^2, |omega|^2
         self.window: deque = deque()
         self.sums = [0.0] * 5
         self.gnss_t_ns, self.gnss_speed = -1, 0.0
         self.still = False
         self.passing_since_ns: int | None = None
-        self.f_still_b = np.zeros(3)  # window-mean specific force when the standstill began [m/s^2]
+        # window-mean measured specific force when the last standstill began [m/s^2], until a motion test fails
+        self.f_ref_b: np.ndarray | None = None
         self.next_ns = 0
         self.rate_sum, self.rate_dt = [0.0, 0.0, 0.0], 0.0  # bias-corrected angle since the last update [rad, s]
 
@@ -93,25 +97,30 @@ class ZeroVelocity(AidSource):
         if self.window[-1][0] - self.window[0][0] < self.window_ns // 2:
             return False  # too few samples yet
         s = self.sums
-        accel_var = s[3] / n - (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / (n * n)
-        if accel_var > self.max_accel_var or s[4] / n > self.max_gyro_ms:
+        f_b = np.array(s[0:3]) / n
+        if not self._moving_free(nav, f_b):
+            self.f_ref_b = None
+            return False
+        if self.f_ref_b is not None and float(np.sum(np.square(f_b - self.f_ref_b))) > self.max_accel_change2:
+            return False
+        f_n = nav.state.C_nb @ f_b
+        return f_n[0] * f_n[0] + f_n[1] * f_n[1] <= self.max_accel2
+
+    def _moving_free(self, nav, f_b: np.ndarray) -> bool:
+        """The tests that motion fails: window variance of f_b, RMS rate, INS speed, GNSS speed."""
+        s, n = self.sums, len(self.window)
+        if s[3] / n - float(f_b @ f_b) > self.max_accel_var or s[4] / n > self.max_gyro_ms:
             return False
         v = nav.state
-        f_b = np.array(s[0:3]) / n
-        f_n = v.C_nb @ f_b
-        if f_n[0] * f_n[0] + f_n[1] * f_n[1] > self.max_accel2:
-            return False
-        if self.still and float(np.sum(np.square(f_b - self.f_still_b))) > self.max_accel2:
-            return False
         if math.sqrt(v.vn * v.vn + v.ve * v.ve + v.vd * v.vd) > self.ins_speed_mps:
             return False
         return not (self.gnss_t_ns >= 0 and nav.t_ns - self.gnss_t_ns <= GNSS_SPEED_MAX_AGE_NS
                     and self.gnss_speed > self.gnss_speed_mps)
 
     def on_step(self, nav) -> None:
-        omega_ib_b, f_b, dt = nav.imu_rates()
+        omega_ib_b, _, dt = nav.imu_rates()
         t_ns = nav.t_ns
-        self._add(t_ns, f_b, omega_ib_b)
+        self._add(t_ns, nav.imu_rates(corrected=False)[1], omega_ib_b)
         if nav.align_state == AlignState.COARSE or not self.test(nav):
             self.still, self.passing_since_ns = False, None
             self.rate_sum, self.rate_dt = [0.0, 0.0, 0.0], 0.0
@@ -124,7 +133,7 @@ class ZeroVelocity(AidSource):
             if t_ns - self.passing_since_ns < self.enter_ns:
                 return
             self.still, self.next_ns = True, t_ns
-            self.f_still_b = np.array(self.sums[0:3]) / len(self.window)
+            self.f_ref_b = np.array(self.sums[0:3]) / len(self.window)
             nav.counters["zupt_standstills"] += 1
         if t_ns >= self.next_ns:
             self.next_ns = t_ns + self.every_ns
@@ -152,7 +161,7 @@ class ZeroVelocity(AidSource):
         return {**super().get_state(), "window": [list(w) for w in self.window], "sums": list(self.sums),
                 "gnss": [int(self.gnss_t_ns), float(self.gnss_speed)], "still": bool(self.still),
                 "passing_since_ns": self.passing_since_ns, "next_ns": int(self.next_ns),
-                "f_still_b": self.f_still_b.tolist(),
+                "f_ref_b": None if self.f_ref_b is None else self.f_ref_b.tolist(),
                 "rate": [list(self.rate_sum), float(self.rate_dt)]}
 
     def set_state(self, state: dict) -> None:
@@ -164,5 +173,5 @@ class ZeroVelocity(AidSource):
         p = state["passing_since_ns"]
         self.passing_since_ns = None if p is None else int(p)
         self.next_ns = int(state["next_ns"])
-        self.f_still_b = np.array(state["f_still_b"], dtype=float)
+        self.f_ref_b = None if state["f_ref_b"] is None else np.array(state["f_ref_b"], dtype=float)
         self.rate_sum, self.rate_dt = [float(x) for x in state["rate"][0]], float(state["rate"][1])
