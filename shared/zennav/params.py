@@ -37,7 +37,8 @@ class ParamError(ValueError):
 @dataclass(frozen=True)
 class Param:
     """One filter setting: its section in the file, the human unit written beside the value, the kind of
-    value ("float", "int", "bool", "fix": a FixType name) and the factor to SI (deg -> rad)."""
+    value ("float", "int", "bool", "fix": a FixType name, "vec3": three numbers and one unit, '0, 0, 0 m') and
+    the factor to SI (deg -> rad)."""
 
     section: str
     unit: str
@@ -91,6 +92,28 @@ FILTER: dict[str, Param] = {
     "nhc": Param("constraints", "", "bool"),
     "nhc_std_mps": Param("constraints", "m/s"),
     "nhc_every_s": Param("constraints", "s"),
+    "vehicle_mount_euler": Param("constraints", "deg", "vec3", _DEG),
+    "vehicle_lever_b": Param("constraints", "m", "vec3"),
+    "zupt": Param("constraints", "", "bool"),
+    "zupt_window_s": Param("constraints", "s"),
+    "zupt_accel_std_mps2": Param("constraints", "m/s^2"),
+    "zupt_gyro_rms": Param("constraints", "deg/s", to_si=_DEG),
+    "zupt_accel_mps2": Param("constraints", "m/s^2"),
+    "zupt_accel_change_mps2": Param("constraints", "m/s^2"),
+    "zupt_gnss_speed_mps": Param("constraints", "m/s"),
+    "zupt_ins_speed_mps": Param("constraints", "m/s"),
+    "zupt_enter_s": Param("constraints", "s"),
+    "zupt_every_s": Param("constraints", "s"),
+    "zupt_std_mps": Param("constraints", "m/s"),
+    "zaru": Param("constraints", "", "bool"),
+    "zaru_std": Param("constraints", "deg/s", to_si=_DEG),
+    "odometer": Param("constraints", "", "bool"),
+    "odo_std_mps": Param("constraints", "m/s"),
+    "odo_scale_std": Param("constraints", "%", to_si=0.01),
+    "odo_scale_psd": Param("constraints", "%^2/s", to_si=1e-4),
+    "odo_scale_tau_s": Param("constraints", "s"),
+    "odo_max_age_s": Param("constraints", "s"),
+    "odo_max_speed_mps": Param("constraints", "m/s"),
     # consistency monitoring and robust gating
     "consistency": Param("robust", "", "bool"),
     "consistency_window": Param("robust", "", "int"),
@@ -100,18 +123,44 @@ FILTER: dict[str, Param] = {
     "consistency_max_factor": Param("robust", ""),
 }
 
+# Vehicle profiles: the constraint names a profile lists (deploy/ins.yaml ``profiles``) and their NavConfig switch.
+CONSTRAINTS = {"nhc": "nhc", "zupt": "zupt", "odo": "odometer"}
+NO_PROFILE = "none"  # constraints.profile: none keeps the file's own switches
+
+
+def constraint_flags(names) -> dict:
+    """{NavConfig switch: on} for a list of constraint names (CONSTRAINTS); those not named are off. ParamError
+    for an unknown name."""
+    names = list(names)
+    unknown = [n for n in names if n not in CONSTRAINTS]
+    if unknown:
+        raise ParamError(f"unknown constraint {unknown[0]!r}; known: {', '.join(CONSTRAINTS)}")
+    return {flag: name in names for name, flag in CONSTRAINTS.items()}
+
 
 def load_filter_params(path: str | os.PathLike | None = None) -> dict:
     """{NavConfig field: SI value} from an ins parameter file (``ins:`` mapping of sections). path None:
     deploy/ins.yaml, or NavConfig's defaults when the package is installed without deploy/. A partial file
-    leaves the other settings at NavConfig's defaults."""
+    leaves the other settings at NavConfig's defaults. A ``constraints.profile`` other than none sets the
+    constraint switches (nhc, zupt, odometer) to the ones its ``profiles`` entry lists."""
+    return _load_ins_file(path)[0]
+
+
+def load_profiles(path: str | os.PathLike | None = None) -> dict[str, tuple[str, ...]]:
+    """{vehicle profile: its constraint names} of an ins parameter file's ``profiles`` section (path None:
+    deploy/ins.yaml)."""
+    return _load_ins_file(path)[1]
+
+
+def _load_ins_file(path) -> tuple[dict, dict]:
+    """(filter settings, profiles) of an ins parameter file (see load_filter_params)."""
     import yaml
 
     p = Path(path) if path else INS_PARAMS
     if not p.exists():
         if path:
             raise ParamError(f"{p}: ins parameter file not found")
-        return {}
+        return {}, {}
     text = p.read_text()
     try:
         doc = yaml.safe_load(text) or {}
@@ -121,12 +170,20 @@ def load_filter_params(path: str | os.PathLike | None = None) -> dict:
         raise ParamError(f"{p}:{mark.line + 1 if mark else 0}: not YAML: {getattr(e, 'problem', e)}") from None
     if not isinstance(doc, dict) or set(doc) != {"ins"} or not isinstance(doc["ins"], dict):
         raise ParamError(f"{p}:1: needs one top-level mapping 'ins:' of sections")
-    out = {}
+    out: dict = {}
+    profiles: dict[str, tuple[str, ...]] = {}
+    profile = (NO_PROFILE, "")
     for section, entries in doc["ins"].items():
         where = f"{p}:{lines.get((section,), 0)}: {section}"
         if not isinstance(entries, dict):
             raise ParamError(f"{where}: a section is a mapping of settings")
+        if section == "profiles":
+            profiles = _profiles(entries, p, lines)
+            continue
         for key, value in entries.items():
+            if (section, key) == ("constraints", "profile"):
+                profile = (str(value), f"{p}:{lines.get((section, key), 0)}: {section}.{key}")
+                continue
             spec = FILTER.get(key)
             where = f"{p}:{lines.get((section, key), 0)}: {section}.{key}"
             if spec is None or spec.section != section:
@@ -134,6 +191,26 @@ def load_filter_params(path: str | os.PathLike | None = None) -> dict:
                 raise ParamError(f"{where}: unknown setting{hint}; known in {section}: "
                                  f"{sorted(k for k, s in FILTER.items() if s.section == section) or 'none'}")
             out[key] = _convert(value, spec, where)
+    if profile[0] != NO_PROFILE:
+        if profile[0] not in profiles:
+            raise ParamError(f"{profile[1]}: unknown profile {profile[0]!r}; the file's profiles: "
+                             f"{sorted(profiles) or 'none'} (or {NO_PROFILE})")
+        out.update(constraint_flags(profiles[profile[0]]))
+    return out, profiles
+
+
+def _profiles(entries: dict, p: Path, lines: dict) -> dict[str, tuple[str, ...]]:
+    """The ``profiles`` section: {name: [constraint names]}, checked."""
+    out = {}
+    for name, names in entries.items():
+        where = f"{p}:{lines.get(('profiles', name), 0)}: profiles.{name}"
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise ParamError(f"{where}: a profile is a list of constraint names ({', '.join(CONSTRAINTS)})")
+        try:
+            constraint_flags(names)
+        except ParamError as e:
+            raise ParamError(f"{where}: {e}") from None
+        out[str(name)] = tuple(names)
     return out
 
 
@@ -166,6 +243,8 @@ def _convert(value, spec: Param, where: str):
         if not isinstance(value, str) or value.upper() not in names:
             raise ParamError(f"{where}: {value!r} is not a fix type ({', '.join(names)})")
         return int(FixType[value.upper()])
+    if spec.kind == "vec3":
+        return _convert_vec3(value, spec, where)
     number, unit = value, ""
     if isinstance(value, str):
         number, _, unit = value.strip().partition(" ")
@@ -185,6 +264,21 @@ def _convert(value, spec: Param, where: str):
     if not math.isfinite(x):
         raise ParamError(f"{where}: {value!r} is not finite")
     return x * spec.to_si if spec.to_si != 1.0 else x
+
+
+def _convert_vec3(value, spec: Param, where: str) -> tuple:
+    """'x, y, z unit' -> (x, y, z) in SI, checking the unit."""
+    numbers, _, unit = str(value).strip().rpartition(" ")
+    if unit != spec.unit:
+        raise ParamError(f"{where}: {value!r}: three numbers and the unit '{spec.unit}' expected "
+                         f"('0, 0, 0 {spec.unit}')")
+    try:
+        xyz = [float(x) for x in numbers.split(",")]
+    except ValueError:
+        raise ParamError(f"{where}: {value!r} is not three numbers in {spec.unit}") from None
+    if len(xyz) != 3 or not all(map(math.isfinite, xyz)):
+        raise ParamError(f"{where}: {value!r} is not three finite numbers in {spec.unit}")
+    return tuple(x * spec.to_si if spec.to_si != 1.0 else x for x in xyz)
 
 
 def nav_config(sensor, filter_params: dict):

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .nav.aid import OdometerSample
 from .nav.navigator import AidReport, Navigator
 from .nav.smoother import Recorder, Smoothed, smooth, smooth_rows
 from .nav.types import NS, Dataset
@@ -138,13 +139,19 @@ def run_replay(
     at or after its time. A compensator (zennav.learn.loop) learns from the engine's training samples and
     answers its queries while GNSS is lost. on_epoch(nav) is called after each IMU epoch (progress, recording;
     it must not change the engine). smoothing: also the forward-backward smoothed solution
-    (zennav.nav.smoother) in result.smoothed."""
+    (zennav.nav.smoother) in result.smoothed. The dataset's odometer samples go to an engine
+    with an odometer source (config.odometer) after the first IMU sample at or after their time, outages or not
+    (replay only: the bus has no odometer stream yet)."""
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     nav = navigator or Navigator(config, ds.initial)
     rec = Recorder() if smoothing else None
     nav.recorder = rec
     imu, gnss = ds.imu, ds.gnss
     windows, events = sensor_events(ds, outages, outage_every)
+    odo = ds.odometer if ds.odometer is not None and "odo" in nav.sources else None
+    odo_t = [] if odo is None else odo.t_ns.tolist()
+    odo_speed = [] if odo is None else odo.speed_mps.tolist()
+    j, n_odo = int(np.searchsorted(odo_t, nav.t_ns, side="right")), len(odo_t)
     n = sum(1 for kind, _ in events if kind == "imu")
     t_out = np.empty(n, dtype=np.int64)
     out = np.empty((n, 10))
@@ -160,6 +167,9 @@ def run_replay(
             nav.on_gnss(gnss.fix_at(k))
             continue
         nav.on_imu(t_list[k], dtheta[k], dvel[k])
+        while j < n_odo and odo_t[j] <= t_list[k]:
+            nav.on_aid("odometer", OdometerSample(odo_t[j], odo_speed[j]))
+            j += 1
         if compensator is not None:  # answers fused at this sample are in its solution, as the ins publishes it
             compensator.add(nav.pop_samples())
             for query in nav.pop_queries():

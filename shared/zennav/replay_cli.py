@@ -33,25 +33,33 @@ _parse_every = _click_parser("parse_outage_every")
 def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, compensation: str = "none",
                    target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None,
                    seed: int = 0, params: Path | None = None, nhc: bool | None = None, mcap: Path | None = None,
-                   quiet: bool = False, smooth: bool = False) -> dict:
+                   quiet: bool = False, smooth: bool = False, profile: str | None = None,
+                   constraints: list[str] | None = None, odometer: Path | None = None) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
-    seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins); nhc:
-    override the parameter file's non-holonomic constraint (None: keep); mcap: also write the run as a Foxglove-ready
-    MCAP; quiet: no progress line (there is none either when stderr is not a terminal); smooth: also the
-    forward-backward smoothed solution (metrics under "smoothed", files under smoothed/)."""
+    seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins);
+    profile: a vehicle profile of the parameter file ("dataset": the dataset's vehicle) that sets the constraints;
+    constraints: the constraint names to run instead (wins over the profile); nhc: override the non-holonomic
+    constraint after both (None: keep); odometer: a KF-GINS-Matlab ODO file of wheel speeds for the dataset;
+    mcap: also write the run as a Foxglove-ready MCAP; quiet: no progress line (there is none either when stderr is
+    not a terminal); smooth: also the forward-backward smoothed solution (metrics under "smoothed", files under
+    smoothed/)."""
     from .datasets.errors import DataError
+    from .datasets.odometer import load_kfgins_odometer
     from .datasets.registry import load_dataset
     from .learn.loop import make_compensator
     from .metrics import evaluate, format_table, write_outputs, write_solution
-    from .params import ParamError, load_filter_params, nav_config
+    from .params import ParamError, nav_config
     from .progress import Progress
     from .replay import run_replay, sensor_events
     from .run_outputs import RunRecorder
 
     try:
         ds = load_dataset(spec)
-        ds.config = nav_config(ds.config, load_filter_params(params))  # the ins's filter on the dataset's sensors
+        if odometer is not None:
+            ds.odometer = load_kfgins_odometer(odometer)
+        # the ins's filter on the dataset's sensors
+        ds.config = nav_config(ds.config, filter_settings(spec, params, profile, constraints))
     except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
     if heading_unknown:
@@ -96,6 +104,26 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     if mcap is not None and not as_json:
         click.echo(f"wrote {mcap} (opens in Foxglove: map, 3-D pose, every message)")
     return metrics
+
+
+def filter_settings(spec: str, params: Path | None, profile: str | None, constraints: list[str] | None) -> dict:
+    """The parameter file's filter settings ({NavConfig field: SI value}) with the vehicle constraints of a
+    profile (a name of the file's profiles, "dataset": the dataset's vehicle, "none": none) and then an explicit
+    list of constraint names, which wins. ParamError for an unknown profile or constraint."""
+    from .datasets.registry import vehicle_of
+    from .params import ParamError, constraint_flags, load_filter_params, load_profiles
+
+    settings = load_filter_params(params)
+    if profile is not None:
+        name = vehicle_of(spec) if profile == "dataset" else profile
+        profiles = load_profiles(params)
+        if name != "none" and name not in profiles:
+            raise ParamError(f"--profile: {name!r} is not a profile of {params or 'deploy/ins.yaml'} "
+                             f"({', '.join(sorted(profiles))}, dataset or none)")
+        settings.update(constraint_flags(profiles.get(name, ())))
+    if constraints is not None:
+        settings.update(constraint_flags(constraints))
+    return settings
 
 
 def _alignment_summary(status: dict, t0_ns: int) -> str:
@@ -167,14 +195,25 @@ def _setup_logging(verbose: int) -> None:
 @click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,
               help="Innovation-based adaptive GNSS measurement noise (seed 001); default: the parameter file's (off).")
 @click.option("--nhc/--no-nhc", "nhc", default=None,
-              help="Non-holonomic constraint of a land vehicle (no sideslip, no jump); default: the parameter "
-                   "file's (off).")
+              help="Non-holonomic constraint of a land vehicle (no sideslip, no jump), after --profile and "
+                   "--constraints; default: the parameter file's (off).")
+@click.option("--profile", default=None, metavar="NAME",
+              help="Vehicle profile of the parameter file (car: nhc, zupt, odo; multirotor: zupt; fixed-wing: none; "
+                   "pedestrian: zupt), 'dataset' for the dataset's vehicle, or none; sets the constraints. Default: "
+                   "the parameter file's constraints.profile (none).")
+@click.option("--constraints", "constraints", default=None, metavar="LIST",
+              callback=lambda c, p, v: None if v is None else [x for x in v.split(",") if x and x != "none"],
+              help="The vehicle constraints to run, comma-separated from nhc, zupt, odo, or none; wins over "
+                   "--profile.")
+@click.option("--odometer", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="Wheel speeds for the dataset, a KF-GINS-Matlab ODO file (time of week [s], forward speed [m/s]); "
+                   "used with the odo constraint.")
 @click.option("--smooth", is_flag=True,
               help="Also smooth the run forward-backward (Rauch-Tung-Striebel over the error-state filter, all "
                    "states): metrics of both, the smoothed nav.txt/nav.csv under OUT/smoothed/.")
 @_with_outage_opts
-def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, smooth, outages, every, out, as_json,
-           compensation, target, seed, verbose, mcap, quiet):
+def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, profile, constraints, odometer, smooth,
+           outages, every, out, as_json, compensation, target, seed, verbose, mcap, quiet):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
@@ -185,7 +224,8 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, sm
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
-                   heading_unknown, adaptive_r, seed, params, nhc, mcap, quiet, smooth)
+                   heading_unknown, adaptive_r, seed, params, nhc, mcap, quiet, smooth, profile, constraints,
+                   odometer)
 
 
 @click.command("report")

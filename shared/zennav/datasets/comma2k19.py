@@ -8,6 +8,7 @@ Follows the dataset README (NumPy ``t.npy``/``value.npy`` pairs, ``t`` = device 
   times are GPS seconds since 1980-01-06 (week * 604800 + tow).
 - GNSS ``live_gnss_ublox``: lat, lon [deg], speed [m/s], utc_timestamp [ms], altitude [m], bearing [deg];
   the fix time is utc_timestamp + 18 leap seconds (2018). No accuracy is given: assumed stds below.
+- Odometer ``processed_log/CAN/wheel_speed`` [m/s]: the mean of the rear wheels (load_odometer).
 - Truth ``global_pose``: ECEF camera position and velocity, and the quaternion that the README calls "rotating
   ECEF -> camera frame [forward, right, down]". In our convention it is q_e_cam (it maps camera FRD coordinates to
   ECEF): that reading gives a yaw within 1 deg of the velocity course on this highway, the transposed one is
@@ -23,7 +24,18 @@ import numpy as np
 from zennav.datasets.errors import DataError, existing_file
 from zennav.nav import earth
 from zennav.nav.rotation import dcm_to_euler, quat_to_dcm, wrap_angle
-from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
+from zennav.nav.types import (
+    NS,
+    Dataset,
+    FixType,
+    GnssData,
+    ImuData,
+    ImuNoise,
+    InitialState,
+    NavConfig,
+    OdometerData,
+    Truth,
+)
 
 WEEK_NS = 604800 * NS
 LEAP_SECONDS_MS = 18_000  # GPS - UTC in 2018 [ms]
@@ -120,6 +132,13 @@ def load_gnss(folder) -> GnssData:
     )
 
 
+def load_odometer(folder, to_gps_ns) -> OdometerData:
+    """processed_log/CAN/wheel_speed (FL, FR, RL, RR [m/s], about 89 Hz) -> the mean of the two rear wheels, the
+    speed of the rear axle centre (the constraint point of zennav.nav.aid.vehicle), on GPS times."""
+    t_boot, wheels = _log(Path(folder), "processed_log/CAN/wheel_speed", (4,))
+    return OdometerData(to_gps_ns(t_boot), 0.5 * (wheels[:, 2] + wheels[:, 3]))
+
+
 def load_truth(folder, t_ns: np.ndarray) -> Truth:
     """global_pose (camera, 20 Hz) -> Truth: ECEF -> llh, ECEF velocity -> NED, q_e_cam -> NED Euler angles."""
     folder = Path(folder) / "global_pose"
@@ -207,4 +226,6 @@ def load(folder) -> Dataset:
         "imu_noise": "assumed phone-class values, not from a datasheet",
         "truth": "comma's fused pose of the camera, not independent",
     }
-    return Dataset("comma2k19_example_segment", imu, gnss, config, initial, truth, notes)
+    notes["odometer"] = "CAN wheel_speed, mean of the rear wheels (RL, RR): the rear axle centre; scale unknown"
+    return Dataset("comma2k19_example_segment", imu, gnss, config, initial, truth, notes,
+                   load_odometer(folder, to_gps_ns))

@@ -18,6 +18,17 @@ ACCEPTED = (
 )
 
 
+# The vehicle of each named dataset: its profile in the ins parameter file (zennav replay --profile dataset).
+VEHICLES = {"rtklibexplorer": "car", "comma2k19": "car", "sim:car": "car", "sim:multirotor": "multirotor",
+            "ansfl:": "multirotor"}
+
+
+def vehicle_of(spec: str) -> str:
+    """The vehicle profile of a dataset spec (VEHICLES; ansfl:* flights are multirotors); "none" when unknown
+    (sim:static, dataset folders, KF-GINS files)."""
+    return VEHICLES.get(spec, VEHICLES["ansfl:"] if spec.startswith("ansfl:") else "none")
+
+
 def ansfl_specs() -> list[str]:
     """Every ansfl:<group>/path_<n> spec, in order."""
     return [f"ansfl:{group}/path_{k}" for group, n in ANSFL_FLIGHTS.items() for k in range(1, n + 1)]

@@ -131,6 +131,7 @@ class Navigator:
         self._cov_dt = 0.0
         self._cov_dvel = [0.0, 0.0, 0.0]
         self._cov_dtheta = [0.0, 0.0, 0.0]
+        self._imu_sample: tuple[list, list, float] = ([0.0] * 3, [0.0] * 3, 1.0)  # raw increments, interval [s]
         self._pending: list[GnssFix] = []
         self._reports: list[AidReport] = []
         self.tap = LearningTap(config.learn_horizon_s) if config.learning else None
@@ -168,6 +169,7 @@ class Navigator:
             return self._reject_imu("imu_nonfinite", t_ns)
         if t_ns <= self.t_ns:
             return self._reject_imu("imu_duplicate" if t_ns == self.t_ns else "imu_out_of_order", t_ns)
+        self._imu_sample = (dtheta, dvel, (t_ns - self.t_ns) / NS)
         while self._pending and self._pending[0].t_ns <= t_ns:
             fix = self._pending.pop(0)
             if fix.t_ns > self.t_ns:
@@ -217,6 +219,7 @@ class Navigator:
         if source.name in self.sources:
             raise ValueError(f"an aiding source named {source.name!r} exists")
         self.sources[source.name] = source
+        source.attach(self)
         for kind in source.inputs:
             self._inputs.setdefault(kind, []).append(source)
         if type(source).on_step is not AidSource.on_step:
@@ -301,6 +304,20 @@ class Navigator:
     @property
     def P(self) -> np.ndarray:
         return self.kf.P
+
+    def imu_rates(self, corrected: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+        """Body rate omega_ib_b [rad/s] and specific force f_b [m/s^2] of the IMU sample being processed, corrected
+        with the estimated biases and scale factors (corrected=False: as measured), and its interval [s] (for the
+        sources' on_step; the sample's whole interval, however a GNSS fix split it)."""
+        dtheta, dvel, dt = self._imu_sample
+        if not corrected:
+            return np.array(dtheta) / dt, np.array(dvel) / dt, dt
+        omega_ib_b = np.array(dtheta) / dt - np.array(self.gyro_bias)
+        f_b = np.array(dvel) / dt - np.array(self.accel_bias)
+        if self._scale is not None:
+            omega_ib_b /= 1.0 + self.aug_value(self._scale[0])
+            f_b /= 1.0 + self.aug_value(self._scale[1])
+        return omega_ib_b, f_b, dt
 
     def solution(self) -> NavSolution:
         s = self.state

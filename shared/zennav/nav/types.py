@@ -299,6 +299,32 @@ class NavConfig:
     nhc: bool = False  # non-holonomic constraint of a land vehicle (zennav.nav.aid.constraints)
     nhc_std_mps: float = 0.1  # 1-sigma of the constrained lateral and vertical body velocity [m/s]
     nhc_every_s: float = 0.1  # period of the constraint's updates [s of data time]
+    # the vehicle frame v (forward-right-down of the car body) for the constraints and the odometer
+    # (zennav.nav.aid.vehicle): configured, not estimated
+    vehicle_mount_euler: tuple = (0.0, 0.0, 0.0)  # roll, pitch, yaw of v in the IMU body frame [rad]: C_bv
+    vehicle_lever_b: tuple = (0.0, 0.0, 0.0)  # IMU to the constraint point (rear axle centre), body FRD [m]
+    # zero velocity and angular rate at standstill (zennav.nav.aid.zupt)
+    zupt: bool = False
+    zupt_window_s: float = 0.5  # detector window [s]
+    zupt_accel_std_mps2: float = 0.1  # still: RMS deviation of f_b from its window mean below this [m/s^2]
+    zupt_gyro_rms: float = math.radians(0.5)  # still: RMS of the bias-corrected body rate below this [rad/s]
+    zupt_accel_mps2: float = 0.1  # still: horizontal specific force in n (acceleration) below this [m/s^2]
+    zupt_accel_change_mps2: float = 0.03  # stay still: mean f_b changed by less since the stop began [m/s^2]
+    zupt_gnss_speed_mps: float = 0.2  # not still while a GNSS velocity of the last second is faster [m/s]
+    zupt_ins_speed_mps: float = 2.0  # not still while the INS speed is above this [m/s]
+    zupt_enter_s: float = 1.0  # hysteresis: still after the test passed this long; left at the first failure [s]
+    zupt_every_s: float = 0.1  # period of the updates while still [s of data time]
+    zupt_std_mps: float = 0.02  # 1-sigma of the zero velocity [m/s]
+    zaru: bool = True  # with the zero velocity, the zero angular rate (earth rate) calibrating the gyro bias
+    zaru_std: float = math.radians(0.05)  # 1-sigma of the body rate averaged between updates [rad/s]
+    # odometer / wheel speed with a scale-factor state (zennav.nav.aid.odometer)
+    odometer: bool = False
+    odo_std_mps: float = 0.1  # 1-sigma of one forward-speed sample [m/s]
+    odo_scale_std: float = 0.01  # initial 1-sigma of the scale-factor error [ratio]
+    odo_scale_psd: float = 1e-8  # PSD of the scale factor's driving noise [ratio^2/s]
+    odo_scale_tau_s: float = 3600.0  # its Gauss-Markov correlation time [s]
+    odo_max_age_s: float = 0.1  # a sample older than this behind the IMU time is not fused [s]
+    odo_max_speed_mps: float = 80.0  # a sample faster than this (either sign) is malformed [m/s]
     scale_factors: bool = True  # estimate gyro/accel scale factors (21 states) when the IMU description has them
     consistency: bool = True  # NIS monitor and adaptive fading factor of the GNSS sources (nav.consistency)
     consistency_window: int = 10  # updates in the NIS window
@@ -324,3 +350,18 @@ class Dataset:
     initial: InitialState
     truth: Truth | None = None
     notes: dict = field(default_factory=dict)
+    odometer: OdometerData | None = None  # wheel speeds, where the recording has them
+
+
+@dataclass
+class OdometerData:
+    """Forward speed of the vehicle at its odometer (wheel speed, CAN speed; negative reversing) [m/s] at t_ns (N,)."""
+
+    t_ns: np.ndarray
+    speed_mps: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def slice(self, sel) -> OdometerData:
+        return OdometerData(self.t_ns[sel], self.speed_mps[sel])

@@ -15,7 +15,7 @@ import numpy as np
 from ..nav import earth
 from ..nav.rotation import wrap_angle
 from ..nav.types import NS, Dataset, FixType, ImuNoise, InitialState, NavConfig, Truth
-from .sensors import ImuErrors, simulate_gnss, simulate_imu
+from .sensors import ImuErrors, simulate_gnss, simulate_imu, simulate_odometer
 from .trajectory import make_trajectory
 
 _DEG_PER_H = math.radians(1.0) / 3600.0  # rad/s
@@ -68,7 +68,8 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
                  gnss_rate_hz: float = 1.0, seed: int = 0, imu_grade: str = "mems", gnss_std_ned=(0.5, 0.5, 1.0),
                  gnss_vel_std: float | None = 0.05, lever_arm_b=(0.5, 0.2, -1.0), perturb_initial: bool = True,
                  start_llh_deg=(30.53, 114.36, 30.0), t0_s: float = 356400.0, gnss_fix: FixType | None = None,
-                 num_sats: int = 12, scale_ppm: tuple[float, float] = (0.0, 0.0), **kw) -> Dataset:
+                 num_sats: int = 12, scale_ppm: tuple[float, float] = (0.0, 0.0), odo_rate_hz: float = 10.0,
+                 odo_scale_error: float = 0.02, odo_std_mps: float = 0.05, **kw) -> Dataset:
     """Simulated dataset of a "car", "multirotor" or "static" trajectory (kw go to its generator in
     zennav.sim.trajectory, e.g. max_speed, or euler [rad] / yaw_rate [rad/s] for "static").
 
@@ -81,12 +82,13 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     start_llh_deg: (lat [deg], lon [deg], h [m]).
     Everything random derives from seed (trajectory, IMU errors, GNSS noise and initial errors each from
     their own stream). The initial state is the truth at the first IMU sample, plus (perturb_initial)
-    an error drawn from its stated std."""
+    an error drawn from its stated std. A car also has an odometer at the IMU (odo_rate_hz, scale-factor error
+    odo_scale_error [ratio], white noise odo_std_mps [m/s]; notes["odo_scale_error"])."""
     if imu_grade not in IMU_GRADES:
         raise ValueError(f"unknown IMU grade {imu_grade!r}; choose from {sorted(IMU_GRADES)}")
     grade = IMU_GRADES[imu_grade]
     noise = grade.noise()
-    ss_traj, ss_imu, ss_gnss, ss_init, ss_scale = np.random.SeedSequence(seed).spawn(5)
+    ss_traj, ss_imu, ss_gnss, ss_init, ss_scale, ss_odo = np.random.SeedSequence(seed).spawn(6)  # first 5: spawn(5)'s
     start_llh = np.array([math.radians(start_llh_deg[0]), math.radians(start_llh_deg[1]), float(start_llh_deg[2])])
     traj = make_trajectory(kind, duration_s, ss_traj, start_llh, **kw)
 
@@ -138,8 +140,13 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
         "gyro_scale": gyro_scale, "accel_scale": accel_scale,  # true scale-factor errors [-] per axis
         "trajectory": traj,
     }
+    odometer = None
+    if kind == "car":
+        odometer = simulate_odometer(traj, _gnss_times(t0_ns, int(imu_t_ns[-1]), odo_rate_hz), t0_ns, odo_scale_error,
+                                     odo_std_mps, np.random.default_rng(ss_odo))
+        notes.update(odo_scale_error=odo_scale_error, odo_std_mps=odo_std_mps, odo_rate_hz=odo_rate_hz)
     name = f"sim-{kind}-{imu_grade}-seed{seed}"
-    return Dataset(name, imu, gnss, config, initial, truth, notes)
+    return Dataset(name, imu, gnss, config, initial, truth, notes, odometer)
 
 
 def true_biases(dataset: Dataset) -> ImuErrors:

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..nav import earth
-from ..nav.types import NS, FixType, GnssData, ImuData, ImuNoise
+from ..nav.types import NS, FixType, GnssData, ImuData, ImuNoise, OdometerData
 from .trajectory import Trajectory, TrajectoryState
 
 
@@ -135,3 +135,15 @@ def simulate_gnss(traj: Trajectory, t_ns, t0_ns: int, lever_arm_b, std_ned, vel_
         v_meas = v_n + std_v_n * rng.standard_normal((m, 3))
     return GnssData(t_ns, llh, std_ned, v_meas, std_v_n, np.full(m, int(fix), dtype=np.int64),
                     np.full(m, int(num_sats), dtype=np.int64))
+
+
+def simulate_odometer(traj: Trajectory, t_ns, t0_ns: int, scale_error: float, std_mps: float,
+                      rng: np.random.Generator, lever_arm_b=(0.0, 0.0, 0.0)) -> OdometerData:
+    """Odometer at times t_ns: (1 + scale_error) times the exact forward speed of the point at lever_arm_b [m, FRD]
+    (the body frame is the vehicle frame of the simulated car) plus white noise of std_mps [m/s]:
+    v_b = C_bn v_n + omega_nb_b x l_b, its x component."""
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    st = traj.state(_seconds(t_ns, t0_ns))
+    v_b = _to_body(st.C_nb, st.v_n) + np.cross(st.omega_nb_b, np.asarray(lever_arm_b, dtype=float))
+    speed = (1.0 + scale_error) * v_b[:, 0] + std_mps * rng.standard_normal(len(t_ns))
+    return OdometerData(t_ns, speed)

@@ -1,5 +1,7 @@
 """Aiding sources of the navigation engine (see base.py): GNSS position and velocity (gnss.py), learned
-pseudo-measurements (learned.py), vehicle-motion constraints (constraints.py). ``build_sources`` is the one place
+pseudo-measurements (learned.py), vehicle-motion constraints (constraints.py: non-holonomic; zupt.py: zero velocity
+and angular rate at standstill; odometer.py: wheel speed with a scale-factor state; vehicle.py: their vehicle
+frame). ``build_sources`` is the one place
 that says which sources an engine runs."""
 from __future__ import annotations
 
@@ -9,17 +11,25 @@ from .base import AidReport, AidSource, Measurement
 from .constraints import NonHolonomic
 from .gnss import MAX_FIX_AGE_S, FixContext, GnssPosition, GnssVelocity
 from .learned import LearnedSource
+from .odometer import Odometer, OdometerSample
+from .zupt import ZeroVelocity
 
 __all__ = ["AidReport", "AidSource", "FixContext", "GnssPosition", "GnssVelocity", "LearnedSource",
-           "MAX_FIX_AGE_S", "Measurement", "NonHolonomic", "build_sources"]
+           "MAX_FIX_AGE_S", "Measurement", "NonHolonomic", "Odometer", "OdometerSample", "ZeroVelocity",
+           "build_sources"]
 
 
 def build_sources(config: NavConfig, t0_ns: int) -> list[AidSource]:
     """The engine's sources in the order they take a shared input (a GNSS fix: position, then velocity); the
-    learned ones only with config.learning, the non-holonomic constraint only with config.nhc."""
+    learned ones only with config.learning, the vehicle constraints only with config.nhc, config.zupt and
+    config.odometer."""
     sources: list[AidSource] = [GnssPosition(config, t0_ns), GnssVelocity(config, t0_ns)]
     if config.nhc:
         sources.append(NonHolonomic(config, t0_ns))
+    if config.zupt:
+        sources.append(ZeroVelocity(config, t0_ns))
+    if config.odometer:
+        sources.append(Odometer(config))
     if config.learning:
         sources += [LearnedSource(config, target) for target in TARGETS]
     return sources

@@ -72,6 +72,10 @@ class AidSource:
         self.R_used: np.ndarray | None = None
         self.last_fused_t_ns = -1
 
+    def attach(self, nav) -> None:
+        """Called by Navigator.add_source before the first IMU sample: where a source adds its own error states
+        (nav.add_states)."""
+
     def admit(self, nav, data) -> bool:
         """Input checks as the data arrives (before it is queued to its time); False: rejected (counted, reported)."""
         return True

@@ -1,0 +1,117 @@
+"""Outage benchmark of the vehicle constraints (issue 18): non-holonomic constraint, zero velocity/angular rate at
+standstills, the odometer, and the learned compensation stacked on them.
+
+rtklibexplorer (real car, MEMS IMU, RTK reference): GNSS withheld for L = 10, 30, 60 s every 90 s, the first at
+120 s; per row the RMS and the maximum over the windows of the per-window maximum horizontal drift, and the change
+of that RMS against pure INS. Rows: pure INS; NHC; NHC+ZUPT; NHC+ZUPT with learned compensation (anfis, elman;
+each for --seeds, and their median). Each row is one product run, the same as
+    zennav replay rtklibexplorer --outage-every 90:L:120 --constraints nhc,zupt [--compensation anfis --seed S]
+sim:car (600 s, MEMS, its odometer 2 % fast with 0.05 m/s noise): the same windows, NHC+ZUPT without and with the
+odometer (scale-factor state estimated), and the scale factor's final estimate.
+
+    .venv/bin/python benchmarks/constraints.py [--windows 10,30,60] [--seeds 0,1,2] [--jobs 2] [--no-learned]
+        [--datasets rtklibexplorer,sim:car]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+PERIOD_S, FIRST_S = 90.0, 120.0
+ROWS = [("INS", ()), ("NHC", ("nhc",)), ("NHC+ZUPT", ("nhc", "zupt"))]
+SIM_ROWS = [("INS", ()), ("NHC+ZUPT", ("nhc", "zupt")), ("NHC+ZUPT+ODO", ("nhc", "zupt", "odo"))]
+LEARNED = ("anfis", "elman")
+
+
+def run(job: tuple) -> tuple:
+    """One product run: (spec, window length, constraint names, compensation, seed) -> (job, per-window maxima,
+    odometer scale (estimate, 1-sigma, truth) or None, wall s)."""
+    import torch
+
+    from zennav.datasets.registry import load_dataset
+    from zennav.learn.loop import make_compensator
+    from zennav.metrics import evaluate
+    from zennav.nav.navigator import Navigator
+    from zennav.params import nav_config
+    from zennav.replay import run_replay
+    from zennav.replay_cli import filter_settings
+
+    torch.set_num_threads(1)
+    spec, length, constraints, compensation, seed = job
+    wall = time.perf_counter()
+    ds = load_dataset(spec)
+    ds.config = nav_config(ds.config, filter_settings(spec, None, None, list(constraints)))
+    compensator = make_compensator(compensation, "body_velocity", seed)
+    config = ds.config.with_(learning=True) if compensator is not None else ds.config
+    nav = Navigator(config, ds.initial)
+    res = run_replay(ds, outage_every=(PERIOD_S, length, FIRST_S), navigator=nav, compensator=compensator)
+    drifts = [o["max_horizontal_m"] for o in evaluate(ds, res)["outages"]]
+    scale = None
+    if "odo_scale" in nav.aug_blocks:
+        sl = nav.aug_blocks["odo_scale"]
+        scale = (float(nav.aug_value(sl)[0]), math.sqrt(nav.P[sl, sl][0, 0]), ds.notes.get("odo_scale_error"))
+    return job, drifts, scale, time.perf_counter() - wall
+
+
+def _stats(drifts) -> tuple[float, float]:
+    d = np.asarray(drifts, dtype=float)
+    return float(np.sqrt(np.mean(d**2))), float(d.max())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--windows", default="10,30,60")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--no-learned", action="store_true", help="skip the learned rows (minutes each)")
+    ap.add_argument("--datasets", default="rtklibexplorer,sim:car")
+    args = ap.parse_args()
+    lengths = [float(x) for x in args.windows.split(",")]
+    seeds = [int(x) for x in args.seeds.split(",")]
+    specs = args.datasets.split(",")
+    jobs = []
+    for length in lengths:
+        if "rtklibexplorer" in specs:
+            jobs += [("rtklibexplorer", length, cons, "none", 0) for _, cons in ROWS]
+            if not args.no_learned:
+                jobs += [("rtklibexplorer", length, ("nhc", "zupt"), model, s) for model in LEARNED for s in seeds]
+        if "sim:car" in specs:
+            jobs += [("sim:car", length, cons, "none", 0) for _, cons in SIM_ROWS]
+    wall = time.perf_counter()
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = {job: (drifts, scale, w) for job, drifts, scale, w in pool.map(run, jobs)}
+    print(f"GNSS withheld for L s every {PERIOD_S:g} s from {FIRST_S:g} s; per-window maximum horizontal drift [m]")
+    for spec, rows in (("rtklibexplorer", ROWS), ("sim:car", SIM_ROWS)):
+        if spec not in specs:
+            continue
+        print(f"\n{spec}\n{'window':>7}{'constraints':>14}{'learned':>14}{'windows':>9}{'RMS m':>9}{'max m':>9}"
+              f"{'vs INS':>9}")
+        for length in lengths:
+            base = _stats(results[(spec, length, (), "none", 0)][0])[0]
+
+            def line(label, learned, n, rms, mx, base=base, length=length):
+                print(f"{length:>6.0f}s{label:>14}{learned:>14}{n:>9}{rms:>9.2f}{mx:>9.2f}"
+                      f"{100.0 * (rms - base) / base:>8.0f}%")
+
+            for label, cons in rows:
+                drifts, scale, _ = results[(spec, length, cons, "none", 0)]
+                line(label, "", len(drifts), *_stats(drifts))
+                if scale is not None:
+                    print(f"{'':>21}odometer scale error {100 * scale[0]:.3f} % +- {100 * scale[1]:.3f} % "
+                          f"(simulated {100 * scale[2]:.3f} %)")
+            if spec == "rtklibexplorer" and not args.no_learned:
+                for model in LEARNED:
+                    runs = [results[(spec, length, ("nhc", "zupt"), model, s)][0] for s in seeds]
+                    for s, drifts in zip(seeds, runs):
+                        line("NHC+ZUPT", f"{model} s{s}", len(drifts), *_stats(drifts))
+                    stats = np.array([_stats(d) for d in runs])
+                    line("NHC+ZUPT", f"{model} median", len(runs[0]), *np.median(stats, axis=0).tolist())
+    print(f"\n{len(jobs)} runs in {time.perf_counter() - wall:.0f} s with {args.jobs} processes")
+
+
+if __name__ == "__main__":
+    main()
