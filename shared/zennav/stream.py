@@ -18,9 +18,9 @@ and its ``stream_start`` is refused (``takeover_refused``); a repeated start of 
 No single message stalls the stream: samples are released through zennav.messages.SequenceMerger (bounded
 reorder window, holes skipped as counted gaps), and at its turn each is judged by the stream's time chain
 (``_accept``): an IMU interval must start where the last one ended (after skipped cseqs: later, by at most
-``max_step_s`` per cseq), a fix must lie within that much of it, the end must repeat the start's counts; a
-refused sample (counted ``time_jump``, ``time_backwards``, ``bad_end`` in the merge counts) leaves its cseq
-open for the genuine one. ``tick()`` (``start_ticker``) skips a hole the stream stopped behind.
+``max_step_s`` per cseq), a fix must lie within that much of it, the end must repeat the start's counts (those
+it knew: -1 is unknown); a refused sample (counted ``time_jump``, ``time_backwards``, ``bad_end`` in the merge
+counts) leaves its cseq open for the genuine one. ``tick()`` (``start_ticker``) skips a hole the stream stopped behind.
 
 Resume (crash recovery): ``resume(start, next_cseq, t_ref_ns)`` takes a checkpoint's position in a stream; it
 applies once a message of that source arrives (``on_resume``), and is dropped when another stream starts.
@@ -261,7 +261,9 @@ class StreamFollower:
                 return "time_backwards"
         elif schema == "stream_end":
             assert self.start is not None
-            if msg["counts"] != self.start["counts"] or msg["last_cseq"] != cseq:
+            expected = self.start["counts"]  # -1: not known at the start (a live receiver's fixes)
+            if (set(msg["counts"]) != set(expected) or msg["last_cseq"] != cseq
+                    or any(n >= 0 and msg["counts"][k] != n for k, n in expected.items())):
                 return "bad_end"
         self._last_cseq = cseq
         return ""

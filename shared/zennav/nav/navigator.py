@@ -53,7 +53,7 @@ from .eskf import (
 from .learning import LearningTap, LearnQuery, LearnSample
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_quat_xyz, rotvec_to_quat
 from .strapdown import NavState, mechanize
-from .types import NS, GnssFix, InitialState, NavConfig
+from .types import NS, AlignState, GnssFix, InitialState, NavConfig
 
 if TYPE_CHECKING:
     from .smoother import Recorder
@@ -355,7 +355,8 @@ class Navigator:
             R = est.update(z, H @ self.kf.P @ H.T, R)
         source.R_used = R
         reason, faults = "", list(m.faults)
-        monitor = source.consistency if m.gated else None
+        # consistency monitoring once aligned: while the heading converges, steady innovations are its error
+        monitor = source.consistency if m.gated and self.alignment.state == AlignState.ALIGNED else None
         if monitor is not None and (factor := monitor.factor(z, H @ self.kf.P @ H.T, R)) > 1.0:
             self.kf.P *= factor  # overconfident on small, steady innovations: fading memory (nav.consistency)
             self.counters[f"{name}_inflated"] += 1
