@@ -34,7 +34,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
                    target: str = "body_velocity", heading_unknown: bool = False, adaptive_r: bool | None = None,
                    seed: int = 0, params: Path | None = None, nhc: bool | None = None, mcap: Path | None = None,
                    quiet: bool = False, smooth: bool = False, profile: str | None = None,
-                   constraints: list[str] | None = None, odometer: Path | None = None) -> dict:
+                   constraints: list[str] | None = None, odometer: Path | None = None,
+                   options: dict | None = None) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
     seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins);
@@ -43,7 +44,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     constraint after both (None: keep); odometer: a KF-GINS-Matlab ODO file of wheel speeds for the dataset;
     mcap: also write the run as a Foxglove-ready MCAP; quiet: no progress line (there is none either when stderr is
     not a terminal); smooth: also the forward-backward smoothed solution (metrics under "smoothed", files under
-    smoothed/)."""
+    smoothed/); options: the dataset loader's options (e.g. duration_s, seed of a simulated drive)."""
     from .datasets.errors import DataError
     from .datasets.odometer import load_kfgins_odometer
     from .datasets.registry import load_dataset
@@ -55,7 +56,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     from .run_outputs import RunRecorder
 
     try:
-        ds = load_dataset(spec)
+        ds = load_dataset(spec, **(options or {}))
         if odometer is not None:
             ds.odometer = load_kfgins_odometer(odometer)
         # the ins's filter on the dataset's sensors
@@ -90,7 +91,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         metrics["smoothed"]["smoother"] = res.smoothed.status["smoother"]
     if out is not None:
         write_outputs(out, ds, res, metrics)
-        recorder.write(out, res.reports, spec)
+        recorder.write(out, res.reports, spec, options)
         if res.smoothed is not None:
             write_solution(out / "smoothed", res.smoothed)
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
@@ -211,21 +212,26 @@ def _setup_logging(verbose: int) -> None:
 @click.option("--smooth", is_flag=True,
               help="Also smooth the run forward-backward (Rauch-Tung-Striebel over the error-state filter, all "
                    "states): metrics of both, the smoothed nav.txt/nav.csv under OUT/smoothed/.")
+@click.option("-o", "--option", "options", multiple=True, metavar="KEY=VALUE",
+              help="A dataset loader option, as zennav-ingest's (repeatable): e.g. -o duration_s=120 -o seed=3 for a "
+                   "simulated drive.")
 @_with_outage_opts
 def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, profile, constraints, odometer, smooth,
-           outages, every, out, as_json, compensation, target, seed, verbose, mcap, quiet):
+           options, outages, every, out, as_json, compensation, target, seed, verbose, mcap, quiet):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
     DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
     KF-GINS YAML file (same as --kf-gins-config). Position errors are horizontal/vertical in metres,
     velocity in m/s, attitude in degrees; errors are computed only where truth exists.
     """
+    from .datasets.registry import parse_loader_options
+
     _setup_logging(verbose)
     if (dataset is None) == (kf_gins_config is None):
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
                    heading_unknown, adaptive_r, seed, params, nhc, mcap, quiet, smooth, profile, constraints,
-                   odometer)
+                   odometer, parse_loader_options(options))
 
 
 @click.command("report")
@@ -239,9 +245,8 @@ def report(run_dir, out, dataset, options):
     """Plots and one self-contained HTML page of a run folder (zennav replay --out, zennav demo): track with the
     GNSS outages, position errors against time, innovation test ratios per aid source, estimated biases with
     their 1-sigma, learned answers against the truth, and the accuracy table (forward and smoothed/ side by side)."""
-    from zennav.services.ingest import _parse_options  # the ingest's -o syntax
-
+    from .datasets.registry import parse_loader_options
     from .report import write_report
 
-    page = write_report(run_dir, out, dataset, _parse_options(options))
+    page = write_report(run_dir, out, dataset, parse_loader_options(options))
     click.echo(f"wrote {page} and {', '.join(p.name for p in sorted(page.parent.glob('*.png')))}")

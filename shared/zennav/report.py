@@ -57,7 +57,8 @@ def _truth(run: Path, metrics: dict, spec: str | None, options: dict):
     from .datasets.registry import load_dataset
 
     if spec is None and (run / "run.json").exists():
-        spec = json.loads((run / "run.json").read_text()).get("dataset_spec")
+        recorded = json.loads((run / "run.json").read_text())
+        spec, options = recorded.get("dataset_spec"), {**recorded.get("loader_options", {}), **options}
     spec = spec or metrics["dataset"]
     try:
         return load_dataset(spec, **options)

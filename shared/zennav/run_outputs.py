@@ -3,7 +3,8 @@ while it runs (``RunRecorder.on_epoch``, zennav.replay.run_replay's hook, which 
 
 - ``aid.csv``: every aiding attempt (time from the run start [s], source, fused, reason, test ratio, observation
   and innovation components);
-- ``run.json``: the dataset spec the run loaded (``zennav report`` loads the truth again from it);
+- ``run.json``: the dataset spec the run loaded and its loader options (``zennav report`` loads the truth again
+  from it);
 - ``biases.csv``: once per second of data, the estimated gyro [deg/h] and accelerometer [mg] biases (body FRD)
   with their 1-sigma from the filter covariance;
 - ``--mcap FILE``: every solution (nav_solution), GNSS fix fed (gnss) and aid report (aid_report) as zennav
@@ -68,9 +69,10 @@ class RunRecorder:
             self._add(self.keys.nav_aid(r.source), M.aid_report_msg(r))
         self.rec.close()
 
-    def write(self, out: Path, reports: list, spec: str) -> None:
-        """aid.csv, biases.csv and run.json in out; spec: the dataset spec of the run."""
-        (out / "run.json").write_text(json.dumps({"dataset_spec": spec}) + "\n")
+    def write(self, out: Path, reports: list, spec: str, options: dict | None = None) -> None:
+        """aid.csv, biases.csv and run.json in out; spec and options: the dataset spec of the run and its loader
+        options."""
+        (out / "run.json").write_text(json.dumps({"dataset_spec": spec, "loader_options": options or {}}) + "\n")
         with open(out / "aid.csv", "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(["t_s", "source", "fused", "reason", "test_ratio", "obs_0", "obs_1", "obs_2", "innov_0",

@@ -40,23 +40,6 @@ from zennav.service import EndAcks, ServiceRunner, add_bus_args
 from zennav.stream import stream_messages
 
 
-def _parse_options(items) -> dict:
-    """Loader options 'key=value' -> {key: int | float | bool | None | str}."""
-    out = {}
-    for it in items or []:
-        k, _, v = it.partition("=")
-        for conv in (int, float):
-            try:
-                v = conv(v)
-                break
-            except ValueError:
-                pass
-        else:
-            v = {"true": True, "false": False, "none": None}.get(v.lower(), v)
-        out[k] = v
-    return out
-
-
 def _outage_type(parse):
     """argparse type from a zennav.replay outage parser (ValueError -> a usage error with the reason)."""
     def conv(text: str):
@@ -155,9 +138,9 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
     """Load, wait for the consumers, stream, wait for the end's acknowledgement; the exit code."""
     log = run.log
     try:
-        from zennav.datasets.registry import load_dataset
+        from zennav.datasets.registry import load_dataset, parse_loader_options
 
-        ds = load_dataset(args.source, **_parse_options(args.option))
+        ds = load_dataset(args.source, **parse_loader_options(args.option))
         if args.heading_unknown:  # travels to the ins in stream_start's InitialState
             ds.initial = replace(ds.initial, heading_known=False)
         windows, events = sensor_events(ds, args.outage, args.outage_every)

@@ -70,6 +70,24 @@ def _load_folder(folder: Path, **options) -> Dataset:
                             f"found {len(configs)} YAML files")
 
 
+def parse_loader_options(items) -> dict:
+    """Loader options given as 'key=value' strings (the -o of zennav-ingest, zennav replay, report, gnss-sim) ->
+    {key: int | float | bool | None | str}."""
+    out = {}
+    for it in items or []:
+        k, _, v = it.partition("=")
+        for conv in (int, float):
+            try:
+                v = conv(v)
+                break
+            except ValueError:
+                pass
+        else:
+            v = {"true": True, "false": False, "none": None}.get(v.lower(), v)
+        out[k] = v
+    return out
+
+
 def load_dataset(spec: str, **options) -> Dataset:
     """Load a dataset from ``spec``: one of ACCEPTED. ``options`` go to the loader (e.g. prefilter="none")."""
     from zennav.datasets import kfgins

@@ -20,16 +20,15 @@ import click
 @click.option("--no-fix", multiple=True, metavar="START:DURATION", help="send fix quality 0 in this window [s]")
 def gnss_sim(dataset, options, use_pty, tcp_port, file_path, fmt, speed, few_sats, no_fix):
     """Send DATASET's GNSS fixes (times from its first IMU sample) as a receiver would, paced at SPEED."""
-    from zennav.services.ingest import _parse_options  # the ingest's -o syntax, so both load the same dataset
 
-    from ..datasets.registry import load_dataset
+    from ..datasets.registry import load_dataset, parse_loader_options
     from ..replay import outage_windows, parse_outage, run_end_ns
     from .simulate import send_fixes, write_all
 
     if sum(x is not None and x is not False for x in (use_pty or None, tcp_port, file_path)) != 1:
         raise click.UsageError("give exactly one of --pty, --tcp PORT, --file PATH")
     try:
-        ds = load_dataset(dataset, **_parse_options(options))
+        ds = load_dataset(dataset, **parse_loader_options(options))
         t0, t_end = int(ds.initial.t_ns), run_end_ns(ds)
         few = outage_windows(t0, t_end, [parse_outage(x) for x in few_sats])
         nofix = outage_windows(t0, t_end, [parse_outage(x) for x in no_fix])

@@ -68,7 +68,7 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
                  gnss_rate_hz: float = 1.0, seed: int = 0, imu_grade: str = "mems", gnss_std_ned=(0.5, 0.5, 1.0),
                  gnss_vel_std: float | None = 0.05, lever_arm_b=(0.5, 0.2, -1.0), perturb_initial: bool = True,
                  start_llh_deg=(30.53, 114.36, 30.0), t0_s: float = 356400.0, gnss_fix: FixType | None = None,
-                 num_sats: int = 12, scale_ppm: tuple[float, float] = (0.0, 0.0), odo_rate_hz: float = 10.0,
+                 num_sats: int = 12, scale_ppm: float | tuple[float, float] = 0.0, odo_rate_hz: float = 10.0,
                  odo_scale_error: float = 0.02, odo_std_mps: float = 0.05, **kw) -> Dataset:
     """Simulated dataset of a "car", "multirotor" or "static" trajectory (kw go to its generator in
     zennav.sim.trajectory, e.g. max_speed, or euler [rad] / yaw_rate [rad/s] for "static").
@@ -77,8 +77,8 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     antenna at lever_arm_b [m, FRD] at gnss_rate_hz on whole-second-aligned epochs with white noise
     gnss_std_ned [m] and gnss_vel_std [m/s] (None: no velocity); fix type RTK_FIXED when every std is
     <= 0.1 m, else SINGLE, unless gnss_fix is given. scale_ppm: 1-sigma of the gyro and accelerometer
-    scale-factor errors [ppm], drawn once per axis (constant) and told to the filter (ImuNoise scale std with the
-    bias correlation time: a KF-GINS-style 21-state filter estimates them); (0, 0): none.
+    scale-factor errors [ppm] (one value: both), drawn once per axis (constant) and told to the filter (ImuNoise scale std with the
+    bias correlation time: a KF-GINS-style 21-state filter estimates them); 0: none.
     start_llh_deg: (lat [deg], lon [deg], h [m]).
     Everything random derives from seed (trajectory, IMU errors, GNSS noise and initial errors each from
     their own stream). The initial state is the truth at the first IMU sample, plus (perturb_initial)
@@ -95,10 +95,11 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     t0_ns = int(round(t0_s * NS))
     n_imu = int(round(duration_s * imu_rate_hz)) + 1
     imu_t_ns = t0_ns + np.arange(n_imu, dtype=np.int64) * int(round(NS / imu_rate_hz))
+    sg_ppm, sa_ppm = (scale_ppm, scale_ppm) if np.isscalar(scale_ppm) else scale_ppm
     scale_draw = np.random.default_rng(ss_scale).standard_normal((2, 3))
-    gyro_scale, accel_scale = scale_draw[0] * scale_ppm[0] * _PPM, scale_draw[1] * scale_ppm[1] * _PPM
-    if any(scale_ppm):
-        noise = replace(noise, gyro_scale_std=scale_ppm[0] * _PPM, accel_scale_std=scale_ppm[1] * _PPM,
+    gyro_scale, accel_scale = scale_draw[0] * sg_ppm * _PPM, scale_draw[1] * sa_ppm * _PPM
+    if sg_ppm or sa_ppm:
+        noise = replace(noise, gyro_scale_std=sg_ppm * _PPM, accel_scale_std=sa_ppm * _PPM,
                         gyro_scale_tau=noise.gyro_bias_tau, accel_scale_tau=noise.accel_bias_tau)
     imu, errors = simulate_imu(traj, imu_t_ns, t0_ns, noise, np.random.default_rng(ss_imu), gyro_scale=gyro_scale,
                                accel_scale=accel_scale)
