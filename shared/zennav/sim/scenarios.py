@@ -77,8 +77,8 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     antenna at lever_arm_b [m, FRD] at gnss_rate_hz on whole-second-aligned epochs with white noise
     gnss_std_ned [m] and gnss_vel_std [m/s] (None: no velocity); fix type RTK_FIXED when every std is
     <= 0.1 m, else SINGLE, unless gnss_fix is given. scale_ppm: 1-sigma of the gyro and accelerometer
-    scale-factor errors [ppm] (one value: both), drawn once per axis (constant) and told to the filter (ImuNoise scale std with the
-    bias correlation time: a KF-GINS-style 21-state filter estimates them); 0: none.
+    scale-factor errors [ppm] (one value: both), drawn once per axis (constant) and told to the filter (ImuNoise
+    scale std with the bias correlation time: a KF-GINS-style 21-state filter estimates them); 0: none.
     start_llh_deg: (lat [deg], lon [deg], h [m]).
     Everything random derives from seed (trajectory, IMU errors, GNSS noise and initial errors each from
     their own stream). The initial state is the truth at the first IMU sample, plus (perturb_initial)
@@ -95,7 +95,7 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     t0_ns = int(round(t0_s * NS))
     n_imu = int(round(duration_s * imu_rate_hz)) + 1
     imu_t_ns = t0_ns + np.arange(n_imu, dtype=np.int64) * int(round(NS / imu_rate_hz))
-    sg_ppm, sa_ppm = (scale_ppm, scale_ppm) if np.isscalar(scale_ppm) else scale_ppm
+    sg_ppm, sa_ppm = (float(scale_ppm), float(scale_ppm)) if isinstance(scale_ppm, (int, float)) else scale_ppm
     scale_draw = np.random.default_rng(ss_scale).standard_normal((2, 3))
     gyro_scale, accel_scale = scale_draw[0] * sg_ppm * _PPM, scale_draw[1] * sa_ppm * _PPM
     if sg_ppm or sa_ppm:
