@@ -16,14 +16,13 @@ Fix quality (GGA): 0 invalid, 6 dead reckoning, 7 manual, 8 simulator -> NONE; 1
 from __future__ import annotations
 
 import math
-from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..gpstime import time_of_day_to_gps_ns
 from ..nav.types import FixType, GnssFix
-from .epoch import EpochAssembler
+from .epoch import EpochDecoder
 
 KNOT_MPS = 1852.0 / 3600.0
 GGA_FIX = {0: FixType.NONE, 1: FixType.SINGLE, 2: FixType.DGPS, 3: FixType.SINGLE, 4: FixType.RTK_FIXED,
@@ -50,7 +49,7 @@ def _float(x) -> float | None:
     return v if math.isfinite(v) else None
 
 
-class NmeaDecoder:
+class NmeaDecoder(EpochDecoder):
     """Sentences -> GnssFix (see the module docstring). ref_t_ns: a GPS time within half a day of the data, used
     until the first fix (None: wait for an RMC date)."""
 
@@ -59,9 +58,7 @@ class NmeaDecoder:
 
         self._nmea = pynmea2
         self.settings = settings or NmeaSettings()
-        self.ref_t_ns = ref_t_ns
-        self.epochs = EpochAssembler()
-        self.counts: Counter[str] = Counter()
+        super().__init__(ref_t_ns)
 
     def decode(self, line: bytes) -> list[GnssFix]:
         """One sentence (bytes, no line end) -> the fixes it completes."""
@@ -80,18 +77,6 @@ class NmeaDecoder:
         self.counts[f"nmea_{kind.lower()}"] += 1
         tag = getattr(msg, "timestamp", None) if kind != "VTG" else self.epochs.tag
         return self._fixes(self.epochs.add(tag, kind, msg))
-
-    def flush(self) -> list[GnssFix]:
-        return self._fixes(self.epochs.flush())
-
-    def _fixes(self, epochs: list[dict]) -> list[GnssFix]:
-        out = []
-        for parts in epochs:
-            fix = self._fix(parts)
-            if fix is not None:
-                out.append(fix)
-                self.ref_t_ns = fix.t_ns
-        return out
 
     def _fix(self, parts: dict) -> GnssFix | None:
         gga, rmc, gst, vtg = (parts.get(k) for k in USED)

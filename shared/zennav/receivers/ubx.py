@@ -13,25 +13,22 @@ from __future__ import annotations
 
 import datetime as dt
 import math
-from collections import Counter
 
 import numpy as np
 
 from ..gpstime import tow_to_gps_ns, utc_to_gps_ns
 from ..nav.types import FixType, GnssFix
-from .epoch import EpochAssembler
+from .epoch import EpochDecoder
 
 USED = ("NAV-PVT", "NAV-COV")
 
 
-class UbxDecoder:
+class UbxDecoder(EpochDecoder):
     """Frames -> GnssFix (see the module docstring). ref_t_ns: a GPS time within half a week of the data, used
     while NAV-PVT's date is not valid."""
 
     def __init__(self, ref_t_ns: int | None = None):
-        self.ref_t_ns = ref_t_ns
-        self.epochs = EpochAssembler()
-        self.counts: Counter[str] = Counter()
+        super().__init__(ref_t_ns)
 
     def decode(self, frame: bytes) -> list[GnssFix]:
         """One whole UBX frame -> the fixes it completes."""
@@ -52,18 +49,6 @@ class UbxDecoder:
             return []
         self.counts[f"ubx_{kind.lower().replace('-', '_')}"] += 1
         return self._fixes(self.epochs.add(int(msg.iTOW), kind, msg))
-
-    def flush(self) -> list[GnssFix]:
-        return self._fixes(self.epochs.flush())
-
-    def _fixes(self, epochs: list[dict]) -> list[GnssFix]:
-        out = []
-        for parts in epochs:
-            fix = self._fix(parts)
-            if fix is not None:
-                out.append(fix)
-                self.ref_t_ns = fix.t_ns
-        return out
 
     def _fix(self, parts: dict) -> GnssFix | None:
         pvt, cov = parts.get("NAV-PVT"), parts.get("NAV-COV")
