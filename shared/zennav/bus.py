@@ -406,13 +406,7 @@ class Bus:
                              name: str | None = None) -> Subscription:
         """subscribe() through a RecoveringSubscription: the publishers' caches fetched at the start and lost
         samples recovered; what could not be recovered is counted in ``missed``."""
-        if channel is None:
-            st = M.stream_of(keyexpr)
-            channel = st.qos.channel if st is not None else "ring"
-        sub = RecoveringSubscription(self, keyexpr, callback, validate=validate, channel=channel, capacity=capacity,
-                                     name=name or keyexpr.rsplit("/", 1)[-1])
-        self._subs.append(sub)
-        return sub
+        return self._subscribe(RecoveringSubscription, keyexpr, callback, validate, channel, capacity, name)
 
     def count_missed(self, keyexpr: str, n: int) -> None:
         """Count samples a recovering subscription detected as lost and could not recover (any thread)."""
@@ -434,11 +428,15 @@ class Bus:
         """callback(key, msg_or_bytes, recv_ns) runs on the subscription's worker thread; with validate=True
         it gets validated message maps (rejections are counted in ``rejected`` and logged), else raw bytes.
         channel defaults to the stream's QoS ("fifo" for exact keys of lossless streams, "ring" otherwise)."""
+        return self._subscribe(Subscription, keyexpr, callback, validate, channel, capacity, name)
+
+    def _subscribe(self, kind: type[Subscription], keyexpr: str, callback: MsgCallback | RawCallback, validate: bool,
+                   channel: str | None, capacity: int, name: str | None) -> Subscription:
         if channel is None:
             st = M.stream_of(keyexpr)
             channel = st.qos.channel if st is not None else "ring"
-        sub = Subscription(self, keyexpr, callback, validate=validate, channel=channel, capacity=capacity,
-                           name=name or keyexpr.rsplit("/", 1)[-1])
+        sub = kind(self, keyexpr, callback, validate=validate, channel=channel, capacity=capacity,
+                   name=name or keyexpr.rsplit("/", 1)[-1])
         self._subs.append(sub)
         return sub
 
