@@ -4,8 +4,7 @@ scale-factor errors (exact truth), over seeds.
 Per vehicle (car 900 s, multirotor 600 s, MEMS grade, scale-factor errors drawn per axis with --ppm 1-sigma and
 told to the filter) and outage window length (GNSS withheld for W s every W + 120 s after 180 s): the RMS of the
 per-window maximum horizontal error and the horizontal RMS of the whole run (outages included) for 15 and 21
-states,
-medians over seeds; and the consistency of the 21-state filter's final scale-factor estimates,
+states, medians over seeds; and the consistency of the 21-state filter's final scale-factor estimates,
 rms(error / sigma) over axes and seeds, per sensor (1 means consistent).
 
     .venv/bin/python benchmarks/scale_factors.py [--seeds 0,1,2,3,4] [--ppm 3000] [--windows 30,60]
