@@ -31,27 +31,15 @@ import logging
 import os
 import sys
 import threading
-import time
 from dataclasses import replace
 
 from zennav.datasets.errors import DataError
+from zennav.nodes.ingest import Progress, hold_while_down, outage_arg, stream, wait_matching
 from zennav.replay import parse_outage, parse_outage_every, sensor_events
 from zennav.service import EndAcks, ServiceRunner, add_bus_args
 from zennav.stream import stream_messages
 
 
-def _outage_type(parse):
-    """argparse type from a zennav.replay outage parser (ValueError -> a usage error with the reason)."""
-    def conv(text: str):
-        try:
-            return parse(text)
-        except ValueError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
-    conv.__name__ = parse.__name__
-    return conv
-
-
-# ------------------------------------------------------------------ service
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="zennav-ingest", description=__doc__.split("\n\n")[0])
     p.add_argument("source", nargs="?", default="sim:car", help="dataset spec (default sim:car)")
@@ -60,10 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=int, default=1,
                    help="with --speed 0: up to N consecutive IMU samples per imu_batch message (default 1: imu)")
     p.add_argument("--outage", action="append", default=[], metavar="START:DURATION",
-                   type=_outage_type(parse_outage),
+                   type=outage_arg(parse_outage),
                    help="withhold GNSS for DURATION s starting START s after the initial time (repeatable)")
     p.add_argument("--outage-every", default=None, metavar="PERIOD:DURATION[:FIRST]",
-                   type=_outage_type(parse_outage_every),
+                   type=outage_arg(parse_outage_every),
                    help="withhold GNSS for DURATION s every PERIOD s, the first at FIRST (default PERIOD-DURATION)")
     p.add_argument("--heading-unknown", action="store_true",
                    help="start without the dataset's initial yaw: the ins aligns (`zennav replay --heading-unknown`)")
@@ -163,10 +151,7 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
                 log.error("gave up waiting for %s (alive: %s)", waits, sorted(run.bus.alive()))
                 run.set_state("error", f"{waits} not alive")
                 return 2
-            deadline = time.monotonic() + args.wait_timeout
-            while not (p_imu.matching and p_stream.matching) and time.monotonic() < deadline and not run.stopping:
-                time.sleep(0.01)
-            if not (p_imu.matching and p_stream.matching):
+            if not wait_matching((p_imu, p_stream), args.wait_timeout, lambda: run.stopping):
                 log.warning("no subscriber on the sensor keys after %.0f s: streaming anyway", args.wait_timeout)
         if args.start_delay:
             run.wait(args.start_delay)
@@ -178,12 +163,12 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
             progress = Progress(run.bus, args.rejoin_timeout)
 
             def hold(cseq: int) -> None:
-                _hold(run, waits, args.rejoin_timeout, stats)
+                hold_while_down(run, waits, args.rejoin_timeout, stats)
                 if args.max_lead > 0:
                     progress.wait_within(cseq, args.max_lead, run)
         msgs = (stream_messages(ds, windows, events, args.batch) if receiver is None else
                 live_messages(ds, windows, events, receiver, speed, args.gnss_latency, lambda: run.stopping))
-        last_cseq = _stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0,
+        last_cseq = stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0,
                             {"stream": p_stream, "imu": p_imu, "gnss": p_gnss}, stats, hold)
         if receiver is not None:
             receiver.stop()
@@ -209,75 +194,6 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
         log.exception("ingest failed: %s", e)
         run.set_state("error", str(e))
         return 1
-
-
-class Progress:
-    """How far each ins following this ingest's stream got (the next cseq its nav status reports), per service
-    name (a restarted ins replaces its old self); one not heard from for stale_s [s] is not waited for."""
-
-    def __init__(self, bus, stale_s: float):
-        self.src, self.stale_s = bus.src, stale_s
-        self._next: dict[str, tuple[int, float]] = {}  # ins service name -> (next cseq, monotonic time heard)
-        self._cv = threading.Condition()
-        for key in (bus.keys.nav_status(), f"{bus.keys.base}/nav/*/status"):
-            bus.subscribe(key, self._on_status, channel="ring", name="progress")
-
-    def _on_status(self, key, msg, recv_ns) -> None:
-        st = msg["stream"]
-        if st.get("src") == self.src:
-            with self._cv:
-                self._next[msg["src"].rsplit(".", 2)[0]] = (int(st.get("next_cseq", -1)), time.monotonic())
-                self._cv.notify_all()
-
-    def wait_within(self, cseq: int, lead: int, run) -> None:
-        """Block while cseq is more than lead ahead of the slowest ins heard from within stale_s."""
-        with self._cv:
-            while not run.stopping:
-                now = time.monotonic()
-                live = [n for n, t in self._next.values() if now - t < self.stale_s]
-                if not live or cseq - min(live) <= lead:
-                    return
-                self._cv.wait(0.2)
-
-
-def _hold(run, waits: list, timeout: float, stats: dict) -> None:
-    """As fast as the consumers drain: pause while an awaited service is down (restarting: it recovers the
-    messages it missed from the cache), at most timeout [s] per outage."""
-    if set(waits) <= run.bus.alive():
-        return
-    down = sorted(set(waits) - run.bus.alive())
-    log = run.log
-    log.warning("pausing the stream: %s down", down)
-    t0 = time.monotonic()
-    ok = False
-    while not (ok or run.stopping) and time.monotonic() - t0 < timeout:
-        ok = run.bus.wait_alive(waits, 0.5)
-    stats["paused_s"] += round(time.monotonic() - t0)
-    (log.info if ok else log.error)("%s after %.1f s", "streaming on: all back" if ok else
-                                    f"streaming on without {sorted(set(waits) - run.bus.alive())}",
-                                    time.monotonic() - t0)
-
-
-def _stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=None) -> int | None:
-    """Publish the stream's messages (zennav.stream.stream_messages), paced at ``speed`` times real time (0: as
-    fast as the consumers drain; hold(cseq): called before each message, may pause); returns the last cseq, or None
-    when stopped."""
-    wall0 = time.perf_counter()
-    msg: dict = {}
-    for kind, msg in msgs:
-        if run.stopping:
-            return None
-        if hold is not None:
-            hold(msg["cseq"])
-        if speed > 0 and kind == "imu":
-            delay = wall0 + (msg["t_ns"] - t0_ns) / 1e9 / speed - time.perf_counter()
-            if delay > 0:
-                time.sleep(delay)
-        pubs[kind].put(msg)
-        if kind != "stream":
-            stats[kind] += len(msg["t_ns_list"]) if msg["schema"] == "imu_batch" else 1
-        stats["cseq"] = msg["cseq"]
-    return msg.get("last_cseq")
 
 
 if __name__ == "__main__":

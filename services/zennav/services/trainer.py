@@ -20,18 +20,11 @@ Wiring table
                                            point, fit points without a set (elman not ready, fit errors), requests;
                                            link losses, device
 
-Schedule, in data terms only (zennav.learn.learner): a fit at --min-samples samples, then every --retrain-samples
-samples, and at every query's n_samples above the last fit point, in increasing order, each on exactly the first
-n samples (the newest --window of them). Fits run on their own thread, so samples keep arriving meanwhile; a fit
-waits until its n samples are in (samples and queries travel on different keys). Each set's metrics carry
-samples_seen (n), the target, the method, epochs, the training RMSE, sigma (the predictor's 1-sigma per output).
+Schedule, in data terms only (zennav.learn.learner): at --min-samples, every --retrain-samples and at each query's
+n_samples, each fit on exactly its first n samples, on its own thread (metrics carry samples_seen, RMSE, sigma).
 
-Versions: one integer per model name, +1 per set, persisted in --state-dir (default ZENNAV_STATE_DIR;
-versions.json, written before each set is published), so a restarted trainer continues above its last set and the
-predictor takes its sets (a version persisted, not time-based: the numbering stays 1, 2, 3, ... reproducible in
-lockstep, and a restart never jumps past the predictor's --max-version-step). At start the trainer also asks for
-the latest set of each of its names on the bus and continues above the highest (else from --first-version). The
-held samples are not persisted: a restarted trainer learns again from the samples that arrive.
+Versions: +1 per set and model name, persisted in --state-dir (default ZENNAV_STATE_DIR) and continued above the
+latest set found on the bus at start (else from --first-version): see zennav.nodes.trainer.
 
 Signatures: every set carries an Ed25519 signature of its checksum by --signing-key (default ZENNAV_SIGNING_KEY;
 `zennav keys DIR` makes a pair); the predictor holds the public key. Without a key the trainer does not start,

@@ -1,0 +1,98 @@
+"""The ingest service's streaming core, transport-agnostic over the bus object it is given: publish a run's
+sensor messages paced in data time or as fast as the consumers drain (``stream``), pause while an awaited
+service is down (``hold_while_down``), and stay within a lead of the slowest ins following the stream
+(``Progress``), wait for the subscribers (``wait_matching``); see zennav.services.ingest for the wiring."""
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+
+
+class Progress:
+    """How far each ins following this ingest's stream got (the next cseq its nav status reports), per service
+    name (a restarted ins replaces its old self); one not heard from for stale_s [s] is not waited for."""
+
+    def __init__(self, bus, stale_s: float):
+        self.src, self.stale_s = bus.src, stale_s
+        self._next: dict[str, tuple[int, float]] = {}  # ins service name -> (next cseq, monotonic time heard)
+        self._cv = threading.Condition()
+        for key in (bus.keys.nav_status(), f"{bus.keys.base}/nav/*/status"):
+            bus.subscribe(key, self._on_status, channel="ring", name="progress")
+
+    def _on_status(self, key, msg, recv_ns) -> None:
+        st = msg["stream"]
+        if st.get("src") == self.src:
+            with self._cv:
+                self._next[msg["src"].rsplit(".", 2)[0]] = (int(st.get("next_cseq", -1)), time.monotonic())
+                self._cv.notify_all()
+
+    def wait_within(self, cseq: int, lead: int, run) -> None:
+        """Block while cseq is more than lead ahead of the slowest ins heard from within stale_s."""
+        with self._cv:
+            while not run.stopping:
+                now = time.monotonic()
+                live = [n for n, t in self._next.values() if now - t < self.stale_s]
+                if not live or cseq - min(live) <= lead:
+                    return
+                self._cv.wait(0.2)
+
+
+def hold_while_down(run, waits: list, timeout: float, stats: dict) -> None:
+    """As fast as the consumers drain: pause while an awaited service is down (restarting: it recovers the
+    messages it missed from the cache), at most timeout [s] per outage."""
+    if set(waits) <= run.bus.alive():
+        return
+    down = sorted(set(waits) - run.bus.alive())
+    log = run.log
+    log.warning("pausing the stream: %s down", down)
+    t0 = time.monotonic()
+    ok = False
+    while not (ok or run.stopping) and time.monotonic() - t0 < timeout:
+        ok = run.bus.wait_alive(waits, 0.5)
+    stats["paused_s"] += round(time.monotonic() - t0)
+    (log.info if ok else log.error)("%s after %.1f s", "streaming on: all back" if ok else
+                                    f"streaming on without {sorted(set(waits) - run.bus.alive())}",
+                                    time.monotonic() - t0)
+
+
+def stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=None) -> int | None:
+    """Publish the stream's messages (zennav.stream.stream_messages), paced at ``speed`` times real time (0: as
+    fast as the consumers drain; hold(cseq): called before each message, may pause); returns the last cseq, or None
+    when stopped."""
+    wall0 = time.perf_counter()
+    msg: dict = {}
+    for kind, msg in msgs:
+        if run.stopping:
+            return None
+        if hold is not None:
+            hold(msg["cseq"])
+        if speed > 0 and kind == "imu":
+            delay = wall0 + (msg["t_ns"] - t0_ns) / 1e9 / speed - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+        pubs[kind].put(msg)
+        if kind != "stream":
+            stats[kind] += len(msg["t_ns_list"]) if msg["schema"] == "imu_batch" else 1
+        stats["cseq"] = msg["cseq"]
+    return msg.get("last_cseq")
+
+
+def outage_arg(parse):
+    """argparse type from a zennav.replay outage parser (ValueError -> a usage error with the reason)."""
+    def conv(text: str):
+        try:
+            return parse(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+    conv.__name__ = parse.__name__
+    return conv
+
+
+def wait_matching(publishers, timeout_s: float, stopping) -> bool:
+    """Wait up to timeout_s [s] (or until stopping()) for a subscriber on every publisher (zenoh's matching
+    status); whether they all have one."""
+    deadline = time.monotonic() + timeout_s
+    while not all(p.matching for p in publishers) and time.monotonic() < deadline and not stopping():
+        time.sleep(0.01)
+    return all(p.matching for p in publishers)
