@@ -26,7 +26,8 @@ DEPLOY_DIR = Path(__file__).resolve().parents[2] / "deploy"
 INS_PARAMS = DEPLOY_DIR / "ins.yaml"
 ATTITUDE_PARAMS = DEPLOY_DIR / "attitude.yaml"
 
-SENSOR_FIELDS = ("imu_noise", "lever_arm_b", "start_t_ns", "end_t_ns")  # travel with the data (stream_start)
+SENSOR_FIELDS = ("imu_noise", "lever_arm_b", "dvl_tilt", "dvl_layout", "dvl_mount_euler", "dvl_lever_b",
+                 "depth_surface_h_m", "start_t_ns", "end_t_ns")  # travel with the data (stream_start)
 SERVICE_FIELDS = ("learning",)  # set by the ins's --learning / replay's --compensation
 
 

@@ -332,6 +332,14 @@ class NavConfig:
     consistency_max_pos_m: float = 1.0  # largest position innovation [m] (and step) an inflating window may hold
     consistency_max_vel_mps: float = 0.5  # the same for the velocity innovation [m/s]
     consistency_max_factor: float = 100.0  # largest covariance factor of one update
+    # Doppler velocity log geometry (zennav.nav.beams): four Janus beams tilted dvl_tilt from the DVL's z axis, in
+    # the "+" layout (beam 1 forward) or the "x" layout (beam 1 at +45 deg); the DVL frame d in the IMU body frame
+    # (roll, pitch, yaw of d in b: C_bd) and the lever arm IMU -> DVL, body FRD [m]
+    dvl_tilt: float = math.radians(30.0)  # [rad]
+    dvl_layout: str = "x"
+    dvl_mount_euler: tuple = (0.0, 0.0, 0.0)  # [rad]
+    dvl_lever_b: tuple = (0.0, 0.0, 0.0)  # [m]
+    depth_surface_h_m: float = 0.0  # height of the water surface [m] (DepthData)
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 
@@ -351,6 +359,8 @@ class Dataset:
     truth: Truth | None = None
     notes: dict = field(default_factory=dict)
     odometer: OdometerData | None = None  # wheel speeds, where the recording has them
+    dvl: DvlData | None = None  # Doppler velocity log (an AUV), its geometry in config (NavConfig dvl_*)
+    depth: DepthData | None = None  # pressure depth sensor (an AUV)
 
 
 @dataclass
@@ -365,3 +375,80 @@ class OdometerData:
 
     def slice(self, sel) -> OdometerData:
         return OdometerData(self.t_ns[sel], self.speed_mps[sel])
+
+
+@dataclass
+class DvlData:
+    """Doppler velocity log samples at t_ns (N,), velocity over the bottom of the DVL (its lever arm point).
+
+    beams: (N, 4) beam velocities [m/s], each the DVL's velocity projected on the beam's unit vector
+    (zennav.nav.beams.janus_directions, DVL frame d); beam_valid: (N, 4) bool (bottom lock per beam).
+    For a DVL that reports only its velocity in d: beams None, velocity_d (N, 3) [m/s] and velocity_valid (N,)."""
+
+    t_ns: np.ndarray
+    beams: np.ndarray | None = None
+    beam_valid: np.ndarray | None = None
+    velocity_d: np.ndarray | None = None
+    velocity_valid: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.beams is None and self.velocity_d is None:
+            raise ValueError("DvlData: beams or velocity_d is required")
+        if self.beams is not None and self.beam_valid is None:
+            self.beam_valid = np.isfinite(self.beams)
+        if self.velocity_d is not None and self.velocity_valid is None:
+            self.velocity_valid = np.isfinite(self.velocity_d).all(axis=1)
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def sample(self, k: int) -> DvlSample:
+        def row(a):
+            return None if a is None else a[k].copy()
+
+        return DvlSample(int(self.t_ns[k]), row(self.beams), row(self.beam_valid), row(self.velocity_d),
+                         None if self.velocity_valid is None else bool(self.velocity_valid[k]))
+
+    def slice(self, sel) -> DvlData:
+        def part(a):
+            return None if a is None else a[sel]
+
+        return DvlData(self.t_ns[sel], part(self.beams), part(self.beam_valid), part(self.velocity_d),
+                       part(self.velocity_valid))
+
+
+@dataclass
+class DvlSample:
+    """One DVL sample; fields as in DvlData (beams (4,), beam_valid (4,), velocity_d (3,), velocity_valid)."""
+
+    t_ns: int
+    beams: np.ndarray | None = None
+    beam_valid: np.ndarray | None = None
+    velocity_d: np.ndarray | None = None
+    velocity_valid: bool | None = None
+
+
+@dataclass
+class DepthData:
+    """Pressure depth sensor samples: depth_m (N,) [m, positive down] at t_ns (N,): depth = h_surface - h (+ the
+    sensor's bias), h the sensor's height and h_surface = NavConfig.depth_surface_h_m [m] in the dataset's heights."""
+
+    t_ns: np.ndarray
+    depth_m: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def sample(self, k: int) -> DepthSample:
+        return DepthSample(int(self.t_ns[k]), float(self.depth_m[k]))
+
+    def slice(self, sel) -> DepthData:
+        return DepthData(self.t_ns[sel], self.depth_m[sel])
+
+
+@dataclass
+class DepthSample:
+    """One depth reading [m, positive down] at t_ns."""
+
+    t_ns: int
+    depth_m: float
