@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .messages.sensor import AID_STREAMS
 from .nav.aid import OdometerSample
 from .nav.navigator import AidReport, Navigator
 from .nav.smoother import Recorder, Smoothed, smooth, smooth_rows
@@ -98,10 +99,12 @@ def sensor_events(
     outages: Sequence[tuple[float, float]] = (),
     outage_every: tuple[float, float, float] | None = None,
 ) -> tuple[list[tuple[int, int]], list[tuple[str, int]]]:
-    """Which IMU samples and GNSS fixes a run feeds the engine, in order: (windows, events), events being
-    ("imu", k) / ("gnss", k) indices into ds.imu / ds.gnss. IMU samples after the initial-state time up to
-    config.end_t_ns; GNSS fixes after the initial time, outside the outage windows, not after the last IMU
-    sample; a fix goes before the first IMU sample at or after its time. run_replay and the ingest service
+    """Which IMU samples, GNSS fixes and aid samples (AID_STREAMS) a run feeds the engine, in order: (windows,
+    events), events being (kind, k) indices into ds.imu / ds.gnss / ds.dvl / ds.depth. IMU samples after the
+    initial-state time up to config.end_t_ns; GNSS fixes after the initial time, outside the outage windows, not
+    after the last IMU sample; aid samples likewise, outages or not. A fix or aid sample goes before the first
+    IMU sample at or after its time (in time order; ties: GNSS, DVL, depth): the engine fuses a fix at its time
+    within that IMU sample, an aid sample right after it (held until then). run_replay and the ingest service
     both take their sequence from here."""
     t_imu = ds.imu.t_ns
     t0 = int(ds.initial.t_ns)
@@ -109,17 +112,26 @@ def sensor_events(
     t_last = run_end_ns(ds)
     k1 = int(np.searchsorted(t_imu, t_last, side="right"))
     windows = outage_windows(t0, t_last, list(outages), outage_every)
-    t_g = ds.gnss.t_ns
-    keep = (t_g > t0) & (t_g <= t_imu[k1 - 1]) if k1 > k0 else np.zeros(len(t_g), dtype=bool)
-    for a, b in windows:
-        keep &= ~((t_g >= a) & (t_g < b))
-    fixes = np.flatnonzero(keep).tolist()
-    before = np.searchsorted(t_imu[k0:k1], t_g[fixes], side="left").tolist()  # IMU position of each fix
+    t_end = t_imu[k1 - 1] if k1 > k0 else t0
+    queued: list[tuple[int, int, int, str, int]] = []  # (IMU position, t_ns, tie rank, kind, index)
+    for rank, kind in enumerate(("gnss", *AID_STREAMS)):
+        data = getattr(ds, kind)
+        if data is None or len(data) == 0:
+            continue
+        t = data.t_ns
+        keep = (t > t0) & (t <= t_end)
+        if kind == "gnss":
+            for a, b in windows:
+                keep &= ~((t >= a) & (t < b))
+        idx = np.flatnonzero(keep)
+        before = np.searchsorted(t_imu[k0:k1], t[idx], side="left")  # IMU position of each
+        queued += zip(before.tolist(), t[idx].tolist(), [rank] * len(idx), [kind] * len(idx), idx.tolist())
+    queued.sort()
     events: list[tuple[str, int]] = []
-    j, nf = 0, len(fixes)
+    j, nq = 0, len(queued)
     for i, k in enumerate(range(k0, k1)):
-        while j < nf and before[j] <= i:
-            events.append(("gnss", fixes[j]))
+        while j < nq and queued[j][0] <= i:
+            events.append((queued[j][3], queued[j][4]))
             j += 1
         events.append(("imu", k))
     return windows, events
@@ -141,7 +153,8 @@ def run_replay(
     it must not change the engine). smoothing: also the forward-backward smoothed solution
     (zennav.nav.smoother) in result.smoothed. The dataset's odometer samples go to an engine
     with an odometer source (config.odometer) after the first IMU sample at or after their time, outages or not
-    (replay only: the bus has no odometer stream yet)."""
+    (replay only: the bus has no odometer stream yet); its DVL and depth samples (sensor_events) likewise, after
+    the odometer's: ``nav.on_aid("dvl" | "depth", sample)``, before the epoch's solution."""
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     nav = navigator or Navigator(config, ds.initial)
     rec = Recorder() if smoothing else None
@@ -160,16 +173,24 @@ def run_replay(
     reports: list[AidReport] = []
     dtheta, dvel = imu.dtheta.tolist(), imu.dvel.tolist()
     t_list = imu.t_ns.tolist()
+    aid_data = {kind: getattr(ds, kind) for kind in AID_STREAMS}
+    held: list[tuple[str, int]] = []  # aid samples waiting for the IMU sample that reaches their time
     i = 0
     wall0 = time.perf_counter()
     for kind, k in events:
         if kind == "gnss":
             nav.on_gnss(gnss.fix_at(k))
             continue
+        if kind != "imu":
+            held.append((kind, k))
+            continue
         nav.on_imu(t_list[k], dtheta[k], dvel[k])
         while j < n_odo and odo_t[j] <= t_list[k]:
             nav.on_aid("odometer", OdometerSample(odo_t[j], odo_speed[j]))
             j += 1
+        for kind_a, k_a in held:
+            nav.on_aid(kind_a, aid_data[kind_a].sample(k_a))
+        held.clear()
         if compensator is not None:  # answers fused at this sample are in its solution, as the ins publishes it
             compensator.add(nav.pop_samples())
             for query in nav.pop_queries():

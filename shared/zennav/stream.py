@@ -4,7 +4,7 @@ ins and the attitude service, follow it (``StreamFollower``).
 ``stream_messages(ds, windows, events)`` turns a run's selection (zennav.replay.sensor_events, the one the
 in-process replay feeds the engine) into the messages of the sensor keys, each stamped with ``cseq``:
 stream_start (the sensor description, zennav.params.SENSOR_FIELDS; the initial state; counts; outages), the
-imu (or imu_batch) and gnss messages in order, stream_end.
+imu (or imu_batch), gnss, dvl and depth messages in order, stream_end.
 
 ``StreamFollower`` takes validated sensor messages (any sensor key, any order) and hands its consumer the
 samples of ONE stream (one ingest instance, ``src``) strictly in ``cseq`` order (zennav.messages.SequenceMerger,
@@ -18,9 +18,10 @@ and its ``stream_start`` is refused (``takeover_refused``); a repeated start of 
 No single message stalls the stream: samples are released through zennav.messages.SequenceMerger (bounded
 reorder window, holes skipped as counted gaps), and at its turn each is judged by the stream's time chain
 (``_accept``): an IMU interval must start where the last one ended (after skipped cseqs: later, by at most
-``max_step_s`` per cseq), a fix must lie within that much of it, the end must repeat the start's counts (those
-it knew: -1 is unknown); a refused sample (counted ``time_jump``, ``time_backwards``, ``bad_end`` in the merge
-counts) leaves its cseq open for the genuine one. ``tick()`` (``start_ticker``) skips a hole the stream stopped behind.
+``max_step_s`` per cseq), a fix (a DVL or depth sample) must lie within that much of it, the end must repeat
+the start's counts (those it knew: -1 is unknown); a refused sample (counted ``time_jump``, ``time_backwards``,
+``bad_end`` in the merge counts) leaves its cseq open for the genuine one. ``tick()`` (``start_ticker``) skips
+a hole the stream stopped behind.
 
 Resume (crash recovery): ``resume(start, next_cseq, t_ref_ns)`` takes a checkpoint's position in a stream; it
 applies once a message of that source arrives (``on_resume``), and is dropped when another stream starts.
@@ -52,12 +53,14 @@ RESYNC_AFTER = 8  # consecutive IMU samples refused as running backwards that re
 
 
 def stream_messages(ds, windows: list, events: list, batch: int = 1) -> Iterator[tuple[str, dict]]:
-    """(kind, message) of the sensor stream of a run (see the module docstring), kind "stream", "imu" or
-    "gnss" (the key it goes on); the publisher stamps src, seq and pub_ns. batch > 1: up to batch consecutive
-    IMU samples per imu_batch message, cut before every GNSS fix (the same samples, cseqs and order)."""
+    """(kind, message) of the sensor stream of a run (see the module docstring), kind "stream", "imu", "gnss",
+    "dvl" or "depth" (the key it goes on); the publisher stamps src, seq and pub_ns. counts: imu and gnss, and
+    each aid stream the dataset has (zennav.messages.AID_STREAMS). batch > 1: up to batch consecutive IMU samples
+    per imu_batch message, cut before every other sample (the same samples, cseqs and order)."""
     imu, gnss = ds.imu, ds.gnss
-    n_imu = sum(1 for e in events if e[0] == "imu")
-    counts = {"imu": n_imu, "gnss": len(events) - n_imu}
+    counts = dict.fromkeys(("imu", "gnss", *(a for a in M.AID_STREAMS if getattr(ds, a) is not None)), 0)
+    for e in events:
+        counts[e[0]] += 1
     yield "stream", M.make("stream_start", int(ds.initial.t_ns), cseq=0, dataset=ds.name,
                            config=sensor_map(ds.config), initial=M.dataclass_to_map(ds.initial), counts=counts,
                            outages=[[int(a), int(b)] for a, b in windows])
@@ -68,12 +71,13 @@ def stream_messages(ds, windows: list, events: list, batch: int = 1) -> Iterator
     cseq = 0
     for kind, idx in events:
         cseq += 1
-        if kind == "gnss":
+        if kind != "imu":
             if held:
                 yield "imu", _batch(held, prev_t, t_list, dtheta, dvel, cseq - len(held))
                 prev_t = t_list[held[-1]]
                 held = []
-            yield "gnss", M.gnss_msg(gnss.fix_at(idx), cseq)
+            yield kind, (M.gnss_msg(gnss.fix_at(idx), cseq) if kind == "gnss" else
+                         M.aid_msg(kind, getattr(ds, kind).sample(idx), cseq))
         elif batch > 1:
             held.append(idx)
             if len(held) == batch:
@@ -101,7 +105,7 @@ class StreamFollower:
     """One consumer's view of the sensor stream (see the module docstring).
 
     on_start(start, join): a stream begins; start is its stream_start message, join None when followed from
-    its start, else the first imu message of a late join. on_sample(key, msg): an imu or gnss message of the
+    its start, else the first imu message of a late join. on_sample(key, msg): an imu, gnss, dvl or depth message of the
     live stream (each sample of an imu_batch as an imu message), in cseq order. on_end(end): its stream_end,
     after every sample. fetch_start(src) -> the stream_start of src or None (late join; None: never joins).
     on_resume(start): a stream resumed from a checkpoint (``resume``) gets its first message.
@@ -254,7 +258,7 @@ class StreamFollower:
                 self.counts["reanchored"] += 1
                 self.log.warning("time chain re-anchored at cseq %d after %d samples refused", cseq, self._refused)
             self.t_ref, self._refused = t, 0
-        elif schema == "gnss":
+        elif schema in ("gnss", "dvl", "depth"):
             if ahead > steps * self.max_step_ns:
                 return "time_jump"
             if -ahead > self.max_step_ns:

@@ -7,6 +7,8 @@ Wiring table
                <base>/sensor/imu/<id>    imu    (increments, as the dataset gives them: no conversion here), or
                                          imu_batch with --batch N: up to N consecutive samples per message
                <base>/sensor/gnss/<id>   gnss
+               <base>/sensor/dvl/<id>    dvl    (a dataset with a DVL: beams + validity and/or DVL-frame velocity)
+               <base>/sensor/depth/<id>  depth  (a dataset with a depth sensor)
     waits for  liveliness of --wait-for services (default: ins) and a subscriber on the IMU key (zenoh's
                                          matching status); with --speed 0 the stream pauses while one of them is
                                          down (--rejoin-timeout): restarted, it recovers what it missed from the
@@ -31,9 +33,11 @@ import logging
 import os
 import sys
 import threading
+from collections import Counter
 from dataclasses import replace
 
 from zennav.datasets.errors import DataError
+from zennav.messages import AID_STREAMS
 from zennav.nodes.ingest import Progress, hold_while_down, outage_arg, stream, wait_matching
 from zennav.replay import parse_outage, parse_outage_every, sensor_events
 from zennav.service import EndAcks, ServiceRunner, add_bus_args
@@ -57,6 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start without the dataset's initial yaw: the ins aligns (`zennav replay --heading-unknown`)")
     p.add_argument("--imu-id", default="0")
     p.add_argument("--gnss-id", default="0")
+    p.add_argument("--dvl-id", default="0")
+    p.add_argument("--depth-id", default="0")
     p.add_argument("--wait-for", default="ins", help="comma-separated services to wait for (liveliness); '' none")
     p.add_argument("--wait-timeout", type=float, default=60.0)
     p.add_argument("--exit-on-end", action=argparse.BooleanOptionalAction, default=True,
@@ -104,11 +110,16 @@ def main(argv=None) -> int:
     def publisher(key: str):
         return run.bus.cached_publisher(key, args.cache) if args.cache > 0 else run.bus.publisher(key)
 
-    p_stream, p_imu, p_gnss = publisher(k.stream()), publisher(k.imu(args.imu_id)), publisher(k.gnss(args.gnss_id))
+    pubs = {"stream": publisher(k.stream()), "imu": publisher(k.imu(args.imu_id)),
+            "gnss": publisher(k.gnss(args.gnss_id))}
+    aid_keys = {"dvl": k.dvl(args.dvl_id), "depth": k.depth(args.depth_id)}  # declared when the dataset has them
     run.ready("starting", f"loading {args.source}")
     result: list[int] = []
-    worker = threading.Thread(target=lambda: result.append(_run(run, args, speed, acks, p_stream, p_imu, p_gnss,
-                                                                stats)), name="ingest", daemon=True)
+
+    def work() -> None:
+        result.append(_run(run, args, speed, acks, pubs, lambda kind: publisher(aid_keys[kind]), stats))
+
+    worker = threading.Thread(target=work, name="ingest", daemon=True)
     worker.start()
     # the main thread only waits: a publish blocked by a stalled consumer cannot delay the reaction to SIGTERM
     while worker.is_alive() and not run.wait(0.2):
@@ -122,8 +133,9 @@ def main(argv=None) -> int:
     return result[0] if result else 1
 
 
-def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats: dict) -> int:
-    """Load, wait for the consumers, stream, wait for the end's acknowledgement; the exit code."""
+def _run(run, args, speed: float, acks: EndAcks, pubs: dict, aid_publisher, stats: dict) -> int:
+    """Load, wait for the consumers, stream, wait for the end's acknowledgement; the exit code. pubs: the stream,
+    imu and gnss publishers; aid_publisher(kind): a publisher of an aid stream's key (zennav.messages.AID_STREAMS)."""
     log = run.log
     try:
         from zennav.datasets.registry import load_dataset, parse_loader_options
@@ -140,10 +152,15 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
             receiver = GnssReceiver(args.gnss_receiver, int(ds.initial.t_ns), silence_s=args.gnss_silence,
                                     log=log).start()
             run.counters = lambda: {**stats, **{f"receiver_{k}": v for k, v in receiver.counts.items()}}
-        n_imu = sum(1 for e in events if e[0] == "imu")
-        n_gnss = len(events) - n_imu
-        log.info("%s: %d IMU samples, %d GNSS fixes, %d outage windows; speed %s", ds.name, n_imu, n_gnss,
-                 len(windows), "max" if speed == 0 else speed)
+        n = Counter(e[0] for e in events)
+        aids = [a for a in AID_STREAMS if getattr(ds, a) is not None]
+        if aids and receiver is not None:
+            raise ValueError(f"--gnss-receiver streams IMU and GNSS only: {ds.name} has {', '.join(aids)}")
+        for kind in aids:
+            pubs[kind] = aid_publisher(kind)
+            stats[kind] = 0
+        log.info("%s: %d IMU samples, %d GNSS fixes%s, %d outage windows; speed %s", ds.name, n["imu"], n["gnss"],
+                 "".join(f", {n[a]} {a} samples" for a in aids), len(windows), "max" if speed == 0 else speed)
         waits = [s for s in args.wait_for.split(",") if s]
         if waits:
             run.set_state("starting", f"waiting for {','.join(waits)}")
@@ -151,7 +168,7 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
                 log.error("gave up waiting for %s (alive: %s)", waits, sorted(run.bus.alive()))
                 run.set_state("error", f"{waits} not alive")
                 return 2
-            if not wait_matching((p_imu, p_stream), args.wait_timeout, lambda: run.stopping):
+            if not wait_matching((pubs["imu"], pubs["stream"]), args.wait_timeout, lambda: run.stopping):
                 log.warning("no subscriber on the sensor keys after %.0f s: streaming anyway", args.wait_timeout)
         if args.start_delay:
             run.wait(args.start_delay)
@@ -168,15 +185,16 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
                     progress.wait_within(cseq, args.max_lead, run)
         msgs = (stream_messages(ds, windows, events, args.batch) if receiver is None else
                 live_messages(ds, windows, events, receiver, speed, args.gnss_latency, lambda: run.stopping))
-        last_cseq = stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0,
-                            {"stream": p_stream, "imu": p_imu, "gnss": p_gnss}, stats, hold)
+        last_cseq = stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0, pubs, stats, hold)
         if receiver is not None:
             receiver.stop()
             log.info("receiver %s: %s", args.gnss_receiver, receiver.counts)
         if last_cseq is None:
             return 0
-        log.info("stream done: %d IMU, %d GNSS, last cseq %d", stats["imu"], stats["gnss"], last_cseq)
-        run.set_state("done", f"streamed {ds.name}: {stats['imu']} IMU, {stats['gnss']} GNSS")
+        done = ", ".join(f"{stats[kind]} {kind.upper() if kind in ('imu', 'gnss') else kind}"
+                         for kind in ("imu", "gnss", *aids))
+        log.info("stream done: %s, last cseq %d", done, last_cseq)
+        run.set_state("done", f"streamed {ds.name}: {done}")
         if waits and "ins" in waits:  # closing the session drops what is still queued: wait for every ins
             ok = acks.wait(last_cseq, args.ack_timeout, lambda: run.stopping)
             log.info("end of stream %s by %s", "acknowledged" if ok else "NOT acknowledged",

@@ -4,11 +4,12 @@ Wiring table
     subscribes <base>/sensor/**          the sensor stream, through zennav.stream.StreamFollower (one stream,
                                          cseq order, late join): stream_start -> Navigator(the stream's sensor
                                          description + the --params filter settings, its initial state);
-                                         imu -> on_imu; gnss -> on_gnss; stream_end -> final status
+                                         imu -> on_imu; gnss -> on_gnss; dvl, depth -> on_aid right after
+                                         the IMU sample that reaches their time; stream_end -> final status
                <base>/attitude           --attitude-alignment: at-rest roll/pitch in coarse alignment
                <base>/learn/correction   --learning: the predictor's answers, fused (zennav.learn.link)
     publishes  <nav>/solution            one per IMU sample (every --solution-every-th)
-               <nav>/aid/<source>        every aid source's status record (gnss_pos, gnss_vel, learned ...)
+               <nav>/aid/<source>        every aid source's status record (gnss_pos, gnss_vel, dvl, depth, ...)
                <nav>/status              engine status, stream progress, drops: every second of data time, on
                                          GNSS or alignment state changes, at the stream end (its acknowledgement)
                <base>/learn/samples      --learning: the engine's training samples (GNSS good, converged)
@@ -46,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--nav-prefix", default="", help="publish on <base>/nav/<prefix>/... (a second ins)")
     p.add_argument("--imu-id", default="0")
     p.add_argument("--gnss-id", default="0")
+    p.add_argument("--dvl-id", default="0")
+    p.add_argument("--depth-id", default="0")
     p.add_argument("--solution-every", type=int, default=1, help="publish every N-th solution")
     p.add_argument("--queue", type=int, default=8192, help="sensor queue capacity (back-pressure beyond)")
     p.add_argument("--learning", action="store_true",
@@ -117,7 +120,8 @@ def main(argv=None) -> int:
                    bus_rejected=bus.rejected_counts, learning=learn, fetch_start=run.stream_start_of,
                    imu_key=k.imu(args.imu_id), gnss_key=k.gnss(args.gnss_id),
                    checkpoint=Checkpointer(args.checkpoint, args.checkpoint_every), bridge_max_s=args.bridge_max,
-                   takeover_after_s=args.takeover_after)
+                   takeover_after_s=args.takeover_after,
+                   aid_keys={"dvl": k.dvl(args.dvl_id), "depth": k.depth(args.depth_id)})
     run.counters = lambda: {**node.counters(), "missed": sum(bus.missed.values())}
     # lockstep: the ins waits for answers (a fit can take minutes) while the ingest streams on; its samples queue
     # here without bound instead of holding the ingest's blocking push past zenoh's wait_before_close.

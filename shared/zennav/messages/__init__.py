@@ -74,14 +74,33 @@ from .schema import (
     Schema,
     define,
 )
-from .sensor import SequenceMerger, check_imu_batch, gnss_fix, gnss_msg, imu_batch_msg, imu_msg, samples
+from .sensor import (
+    AID_STREAMS,
+    SequenceMerger,
+    aid_msg,
+    aid_sample,
+    check_dvl,
+    check_imu_batch,
+    depth_msg,
+    depth_sample,
+    dvl_msg,
+    dvl_sample,
+    gnss_fix,
+    gnss_msg,
+    imu_batch_msg,
+    imu_msg,
+    samples,
+)
 from .status import SERVICE_STATES, service_status_msg
 from .validate import Validator, check_finite_deep, check_value, validate_map
 
 __all__ = [
-    "aid_report_msg", "ALIGN_STATES", "alignment_map", "ALIVE", "ANY", "array_map", "attitude_msg", "BOOL",
-    "check_chunk", "check_finite_deep", "check_imu_batch", "check_nav_status", "check_value", "CHUNK",
-    "correction_msg", "dataclass_to_map", "decode", "define", "encode", "ENCODING", "euler_list", "FLOAT",
+    "AID_STREAMS", "aid_msg", "aid_report_msg", "aid_sample",
+    "ALIGN_STATES", "alignment_map", "ALIVE", "ANY", "array_map", "attitude_msg", "BOOL",
+    "check_chunk", "check_dvl",
+    "check_finite_deep", "check_imu_batch", "check_nav_status", "check_value", "CHUNK",
+    "correction_msg", "dataclass_to_map", "decode", "define",
+    "depth_msg", "depth_sample", "dvl_msg", "dvl_sample", "encode", "ENCODING", "euler_list", "FLOAT",
     "FLOATS", "floats", "gnss_fix", "gnss_msg", "HEADER", "imu_batch_msg", "imu_msg", "INT", "INTS", "Keys",
     "learn_query_msg", "learn_sample_msg", "make", "MAP", "map_array", "map_to_dataclass", "model_params_msg",
     "nav_solution_msg", "nav_solution_msg_of", "nav_status_msg", "noise_map", "OPT", "params_checksum",

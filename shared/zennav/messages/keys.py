@@ -4,6 +4,9 @@ Key grammar, ``<base> = zennav/@v1/<vehicle>``::
 
     <base>/sensor/imu/<id>        imu, imu_batch  IMU increments (angle [rad], velocity [m/s]) over (t_prev, t_ns]
     <base>/sensor/gnss/<id>       gnss            GNSS fix (llh [rad, rad, m], NED std, optional NED velocity)
+    <base>/sensor/dvl/<id>        dvl             Doppler velocity log: 4 beam velocities [m/s] + validity, or the
+                                                  velocity in the DVL frame [m/s] + validity
+    <base>/sensor/depth/<id>      depth           pressure depth [m, positive down]
     <base>/sensor/stream          stream_start / stream_end   start (sensor description, initial state) and end
     <base>/attitude               attitude        attitude filter output at IMU rate
     <base>/nav/solution           nav_solution    navigation solution at IMU rate
@@ -54,6 +57,12 @@ class Keys:
 
     def gnss(self, id: str = "0") -> str:
         return f"{self.base}/sensor/gnss/{check_chunk(str(id), 'gnss id')}"
+
+    def dvl(self, id: str = "0") -> str:
+        return f"{self.base}/sensor/dvl/{check_chunk(str(id), 'dvl id')}"
+
+    def depth(self, id: str = "0") -> str:
+        return f"{self.base}/sensor/depth/{check_chunk(str(id), 'depth id')}"
 
     def stream(self) -> str:
         return f"{self.base}/sensor/stream"
@@ -146,6 +155,8 @@ STREAMS: tuple[Stream, ...] = (
 # far-future sample make every later one look late.
     Stream("sensor/imu", r"sensor/imu/[^/]+", ("imu", "imu_batch"), "cseq", QoS("reliable", "block", "DATA_HIGH")),
     Stream("sensor/gnss", r"sensor/gnss/[^/]+", ("gnss",), "cseq", QoS("reliable", "block", "DATA_HIGH")),
+    Stream("sensor/dvl", r"sensor/dvl/[^/]+", ("dvl",), "cseq", QoS("reliable", "block", "DATA_HIGH")),
+    Stream("sensor/depth", r"sensor/depth/[^/]+", ("depth",), "cseq", QoS("reliable", "block", "DATA_HIGH")),
     Stream("sensor/stream", r"sensor/stream", ("stream_start", "stream_end"), "cseq",
            QoS("reliable", "block", "DATA_HIGH", latest=True)),
     Stream("attitude", r"attitude", ("attitude",), "strict", QoS("reliable", "block", "DATA_HIGH", latest=True)),

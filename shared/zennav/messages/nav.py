@@ -33,6 +33,9 @@ def check_nav_status(msg: dict) -> str:
         times = al.get("times_ns")
         if type(times) is not dict or not all(k in ALIGN_STATES and type(v) is int for k, v in times.items()):
             return "bad_value: alignment.times_ns must map alignment states to int t_ns"
+    ac = msg.get("aid_counts")
+    if ac is not None and not all(type(k) is str and type(n) is int and n >= 0 for k, n in ac.items()):
+        return "bad_value: aid_counts must map stream names to int counts >= 0"
     mn = msg.get("measurement_noise")
     if mn is not None:
         for src, e in mn.items():
@@ -76,9 +79,11 @@ define("nav_status", 1, "ins health: GNSS state, core counters, rejected (bus va
        "Optional (added compatibly, checked strictly when present, see check_nav_status): alignment {state: "
        "coarse|fine|aligned, method, heading_std_rad, times_ns {state: t_ns}, tilt_source, gyrocompass}; "
        "adaptive_r: adaptive measurement noise on/off; measurement_noise {source: {R_diag [unit^2], ratio "
-       "(R / reported R, diagonal) or None, branch, k, inflate, fading}}.",
+       "(R / reported R, diagonal) or None, branch, k, inflate, fading}}; aid_counts {stream: samples consumed} "
+       "of the aid streams (dvl, depth) the stream has.",
        check=check_nav_status, gnss_state=STR, counters=MAP, rejected=MAP, imu_count=INT, gnss_count=INT,
-       stream=MAP, model=MAP, alignment=OPT(MAP), adaptive_r=OPT(BOOL), measurement_noise=OPT(MAP))
+       stream=MAP, model=MAP, alignment=OPT(MAP), adaptive_r=OPT(BOOL), measurement_noise=OPT(MAP),
+       aid_counts=OPT(MAP))
 
 
 def nav_solution_msg(sol, imu_cseq: int = -1, imu_pub_ns: int = 0) -> dict:
@@ -184,14 +189,17 @@ def noise_map(noise: dict) -> dict:
 
 
 def nav_status_msg(t_ns: int, engine_status: dict | None, stream: dict, rejected: dict, imu_count: int,
-                   gnss_count: int, model: dict) -> dict:
+                   gnss_count: int, model: dict, aid_counts: dict | None = None) -> dict:
     """nav_status of the ins: the engine's status() (None before a stream: GNSS state 'unknown'), the stream
     progress (zennav.stream.StreamFollower.status plus the ins's own counts), rejections and drops by reason,
-    the samples consumed and the learning link's model map."""
+    the samples consumed (IMU, GNSS; aid_counts: per aid stream, only when the stream has one) and the learning
+    link's model map."""
     st = engine_status or {"counters": {}, "gnss_state": "unknown"}
     extra: dict = {}
     if "alignment" in st:
         extra["alignment"] = alignment_map(st["alignment"])
+    if aid_counts:
+        extra["aid_counts"] = {str(k): int(v) for k, v in aid_counts.items()}
     if "measurement_noise" in st:
         extra["adaptive_r"] = bool(st.get("adaptive_r", False))
         extra["measurement_noise"] = noise_map(st["measurement_noise"])

@@ -2,7 +2,7 @@
 
 ingest merges all of its sensor streams into one time-ordered sequence (sorted by ``t_ns``; at equal times
 GNSS before IMU, so a fix at t is queued before the IMU sample that reaches t) and stamps every sensor
-message (stream_start, imu, gnss, stream_end) with ``cseq``, one counter shared by all sensor keys of that
+message (stream_start, imu, gnss, dvl, depth, stream_end) with ``cseq``, one counter shared by all sensor keys of that
 ingest instance (``src``). The sensor keys are published reliably with blocking congestion control and the
 same priority, so in practice they arrive in publish order; consumers do not rely on that: they consume
 messages strictly in ``cseq`` order (``SequenceMerger``), holding any that arrive early until the missing
@@ -14,6 +14,8 @@ slot open for the genuine one, and a gap that never fills (a message really lost
 ``gap``; duplicates (cseq already consumed) are counted and dropped.
 An ``imu_batch`` holds N consecutive IMU samples (none of another sensor between them) with cseq c .. c+N-1;
 ``samples(msg)`` expands it into N ``imu`` messages, which consumers merge like any other.
+A ``dvl`` or ``depth`` sample goes right after the first IMU sample at or after its time (the in-process replay
+hands it to the engine there, zennav.replay.sensor_events); at one IMU sample, in time order, DVL first at ties.
 ``stream_start`` describes the sensors and the run (IMU noise model, GNSS lever arm, start/end times, initial
 state and its uncertainty, outages withheld), never filter settings: those are the ins's parameter file
 (``deploy/ins.yaml``). ``stream_end`` carries the counts so consumers can prove nothing was lost.
@@ -21,6 +23,7 @@ state and its uncertainty, outages withheld), never filter settings: those are t
 from __future__ import annotations
 
 import heapq
+import math
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -29,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from .codec import floats, make
-from .schema import ANY, FLOATS, INT, INTS, MAP, OPT, SCHEMAS, SENSOR, STR, VEC, define
+from .schema import ANY, BOOL, FLOAT, FLOATS, INT, INTS, MAP, OPT, SCHEMAS, SENSOR, STR, VEC, define
 
 
 def check_imu_batch(msg: dict) -> str:
@@ -51,9 +54,33 @@ define("imu_batch", 1, "N >= 1 consecutive IMU samples with cseq .. cseq+N-1 (se
 define("gnss", 1, "GNSS fix: llh [rad, rad, m], std_ned [m]; v_n/std_v_n [m/s] NED or None; fix: FixType; "
        "num_sats (-1 unknown).",
        **SENSOR, llh=VEC(3), std_ned=VEC(3), v_n=OPT(VEC(3)), std_v_n=OPT(VEC(3)), fix=INT, num_sats=INT)
+def check_dvl(msg: dict) -> str:
+    """Consistency of a dvl message (types, lengths and finiteness already checked): '' or 'code: detail'. Beams
+    come with their four validity flags, velocity_d with its one; at least one of the two."""
+    beams, valid, v_d, v_valid = (msg.get(f) for f in ("beams", "beam_valid", "velocity_d", "velocity_valid"))
+    if beams is None and v_d is None:
+        return "missing_field: dvl needs beams or velocity_d"
+    if (beams is None) != (valid is None):
+        return "bad_shape: dvl beams and beam_valid come together"
+    if valid is not None and (type(valid) is not list or len(valid) != 4 or any(type(b) is not bool for b in valid)):
+        return "bad_type: dvl beam_valid must be a list of 4 bools"
+    if (v_d is None) != (v_valid is None):
+        return "bad_shape: dvl velocity_d and velocity_valid come together"
+    return ""
+
+
+define("dvl", 1, "Doppler velocity log sample of the DVL at its lever arm point (over the bottom): beams [m/s] the 4 "
+       "beam velocities (zennav.nav.beams, DVL frame d) with beam_valid (4 bools: bottom lock), and/or velocity_d "
+       "[m/s] the velocity in the DVL frame with velocity_valid (bool); an invalid value travels as 0.0 and is "
+       "never used. The beam geometry is the stream's sensor description (stream_start config dvl_*).",
+       check=check_dvl, **SENSOR, beams=OPT(VEC(4)), beam_valid=OPT(ANY), velocity_d=OPT(VEC(3)),
+       velocity_valid=OPT(BOOL))
+define("depth", 1, "Pressure depth sensor sample: depth_m [m, positive down] (zennav.nav.types.DepthData).",
+       **SENSOR, depth_m=FLOAT)
 define("stream_start", 1, "Start of a sensor stream: dataset name; config: the sensor description of the run "
        "(zennav.nav.types.NavConfig fields that describe the sensors and the run, SI: imu_noise, lever_arm_b, "
-       "start_t_ns, end_t_ns; never filter settings); InitialState (as a map, SI), expected counts per stream, "
+       "start_t_ns, end_t_ns, dvl_*; never filter settings); InitialState (as a map, SI), expected counts per stream "
+       "(imu, gnss; dvl, depth where the run has them), "
        "GNSS outages withheld [[t0_ns, t1_ns], ...].",
        **SENSOR, dataset=STR, config=MAP, initial=MAP, counts=MAP, outages=ANY)
 define("stream_end", 1, "End of a sensor stream: counts published per stream and the last cseq.",
@@ -101,6 +128,61 @@ def gnss_fix(msg: dict):
                    v_n=None if v is None else np.array(v),
                    std_v_n=None if sv is None else np.array(sv),
                    fix=int(msg["fix"]), num_sats=int(msg["num_sats"]))
+
+
+AID_STREAMS = ("dvl", "depth")  # a dataset's aid streams that travel on the sensor keys (Dataset attributes)
+
+
+def _wire(values, valid) -> list:
+    """Float list for the wire: the values, 0.0 where not valid (NaN cannot travel: the validator refuses it)."""
+    return [float(x) if ok else 0.0 for x, ok in zip(values, valid)]
+
+
+def dvl_msg(sample, cseq: int) -> dict:
+    """zennav.nav.types.DvlSample -> dvl message (a valid value that is not finite travels as invalid)."""
+    msg = make("dvl", sample.t_ns, cseq=int(cseq))
+    if sample.beams is not None:
+        valid = [bool(ok) and math.isfinite(x) for x, ok in zip(sample.beams.tolist(), sample.beam_valid.tolist())]
+        msg.update(beams=_wire(sample.beams, valid), beam_valid=valid)
+    if sample.velocity_d is not None:
+        ok = bool(sample.velocity_valid) and bool(np.isfinite(sample.velocity_d).all())
+        msg.update(velocity_d=_wire(sample.velocity_d, [ok] * 3), velocity_valid=ok)
+    return msg
+
+
+def dvl_sample(msg: dict):
+    """dvl message -> zennav.nav.types.DvlSample (NaN where a value is not valid)."""
+    from ..nav.types import DvlSample
+
+    beams = valid = v_d = None
+    if msg.get("beams") is not None:
+        valid = np.array(msg["beam_valid"], dtype=bool)
+        beams = np.where(valid, msg["beams"], np.nan)
+    if msg.get("velocity_d") is not None:
+        v_d = np.array(msg["velocity_d"]) if msg["velocity_valid"] else np.full(3, np.nan)
+    return DvlSample(int(msg["t_ns"]), beams, valid, v_d, msg.get("velocity_valid"))
+
+
+def depth_msg(sample, cseq: int) -> dict:
+    """zennav.nav.types.DepthSample -> depth message."""
+    return make("depth", sample.t_ns, cseq=int(cseq), depth_m=float(sample.depth_m))
+
+
+def depth_sample(msg: dict):
+    """depth message -> zennav.nav.types.DepthSample."""
+    from ..nav.types import DepthSample
+
+    return DepthSample(int(msg["t_ns"]), float(msg["depth_m"]))
+
+
+def aid_msg(kind: str, sample, cseq: int) -> dict:
+    """The message of one sample of an aid stream (AID_STREAMS): a DvlSample or a DepthSample."""
+    return dvl_msg(sample, cseq) if kind == "dvl" else depth_msg(sample, cseq)
+
+
+def aid_sample(msg: dict):
+    """A validated dvl or depth message -> its zennav.nav.types sample (DvlSample, DepthSample)."""
+    return dvl_sample(msg) if msg["schema"] == "dvl" else depth_sample(msg)
 
 
 class SequenceMerger:

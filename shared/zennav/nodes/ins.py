@@ -36,12 +36,16 @@ class InsNode:
     """The ins service's core (see the module docstring): feed it validated sensor messages with
     ``on_sensor(key, msg)``; it calls ``publish(kind, msg)`` with kind solution/aid/status. filter_params: SI
     settings of a parameter file (zennav.params.load_filter_params; {}: NavConfig's defaults); imu_key /
-    gnss_key: the sensors it navigates with (None: any)."""
+    gnss_key / aid_keys ({"dvl": key, "depth": key}): the sensors it navigates with (None: any).
+    DVL and depth samples (zennav.messages.AID_STREAMS) come before the IMU sample that reaches their time; they
+    are held until it is processed and then go to ``Navigator.on_aid`` before its solution is published, as the
+    in-process replay hands them over (zennav.replay.run_replay)."""
 
     def __init__(self, publish, log, filter_params: dict | None = None, solution_every: int = 1,
                  status_period_ns: int = 1_000_000_000, on_state=None, bus_rejected=None,
                  learning: LearningLink | None = None, fetch_start=None, imu_key=None, gnss_key=None,
-                 checkpoint: Checkpointer | None = None, bridge_max_s: float = 0.5, takeover_after_s: float = 10.0):
+                 checkpoint: Checkpointer | None = None, bridge_max_s: float = 0.5, takeover_after_s: float = 10.0,
+                 aid_keys: dict | None = None):
         self.publish, self.log = publish, log
         self.filter_params = dict(filter_params or {})
         self.learn = learning  # None: learning off (the default; the engine runs exactly as in the replay)
@@ -49,12 +53,14 @@ class InsNode:
         self.on_state = on_state or (lambda detail: None)
         self.solution_every = max(1, int(solution_every))
         self.status_period_ns = status_period_ns
-        self.keys = {"imu": imu_key, "gnss": gnss_key}
+        self.keys = {"imu": imu_key, "gnss": gnss_key, **{a: None for a in M.AID_STREAMS}, **(aid_keys or {})}
         self.follower = StreamFollower(self._start, self._sample, self._end, fetch_start, log,
                                        takeover_after_s=takeover_after_s, on_resume=self._resume)
         self.on_sensor = self.follower.on_message
         self.nav: Navigator | None = None
         self.imu_count = self.gnss_count = self.sol_count = self.corrections = self.attitude_taken = 0
+        self.aid_count: Counter[str] = Counter()  # aid samples consumed per stream (dvl, depth)
+        self._held: list[dict] = []  # aid messages waiting for the IMU sample that reaches their time
         self.wall_s, self._wall0, self._next_status_t, self._states = 0.0, 0.0, 0, (None, None)
         self._late = False  # this stream was joined late (its samples before the join are not ours)
         self.checkpoint = checkpoint or Checkpointer(None)
@@ -88,7 +94,8 @@ class InsNode:
         self._build(start, saved["initial"], saved["late"])
         assert self.nav is not None
         self.nav.set_state(saved["nav"])
-        self.imu_count, self.gnss_count, self.sol_count = saved["counts"]
+        self.imu_count, self.gnss_count, self.sol_count = saved["counts"][:3]
+        self.aid_count = Counter(saved.get("aid_counts", {}))
         if self.learn is not None and saved["learn_sent"]:  # the queries' n_samples go on where they were
             self.learn.sent.update({t: n for t, n in saved["learn_sent"].items() if t in self.learn.sent})
         self._t_imu = saved["t_ref_ns"]
@@ -103,6 +110,7 @@ class InsNode:
             initial = replace(initial, t_ns=join["t_ns"] - join["dt_ns"], heading_known=False)
         self._build(start, M.dataclass_to_map(initial), join is not None)
         self.imu_count = self.gnss_count = self.sol_count = 0
+        self.aid_count.clear()
         self.log.info("stream %s from %s%s: %s IMU, %s GNSS expected", start["dataset"], start["src"],
                       " (joined late)" if join else "", start["counts"].get("imu"), start["counts"].get("gnss"))
         self.on_state(f"navigating stream {start['dataset']} from {start['src']}")
@@ -119,6 +127,7 @@ class InsNode:
             self.learn.reset()
         self.nav = nav = Navigator(config, initial)
         self._initial, self._late, self._t_imu = initial_map, late, int(initial.t_ns)
+        self._held.clear()
         self._next_status_t = int(initial.t_ns) + self.status_period_ns
         self._states = (nav.gnss_state, nav.align_state)
         self._wall0, self.wall_s = time.perf_counter(), 0.0
@@ -149,6 +158,10 @@ class InsNode:
             nav.on_gnss(M.gnss_fix(msg))
             self._reports(nav)
             return
+        if schema != "imu":  # dvl, depth: fused right after the IMU sample that reaches its time
+            self.aid_count[schema] += 1
+            self._held.append(msg)
+            return
         if msg["t_ns"] - msg["dt_ns"] > self._t_imu:  # samples lost before this one
             bridged = self._bridge(msg)
             if bridged is None:
@@ -157,6 +170,9 @@ class InsNode:
         self.imu_count += 1
         self._t_imu = msg["t_ns"]
         ok = nav.on_imu(msg["t_ns"], msg["dtheta"], msg["dvel"])  # False: rejected by the engine (counted)
+        for held in self._held:
+            nav.on_aid(held["schema"], M.aid_sample(held))
+        self._held.clear()
         self._reports(nav)
         if self.learn is not None:
             self.learn.after_imu(nav)
@@ -181,6 +197,7 @@ class InsNode:
             self.checkpoint.write({"start": start, "next_cseq": msg["cseq"] + 1, "t_ref_ns": msg["t_ns"],
                                    "initial": self._initial, "late": self._late, "nav": nav.get_state(),
                                    "counts": [self.imu_count, self.gnss_count, self.sol_count],
+                                   "aid_counts": dict(self.aid_count),
                                    "learn_sent": dict(self.learn.sent) if self.learn is not None else {}})
         except OSError as e:
             self.recovery["checkpoint_failed"] += 1
@@ -189,11 +206,15 @@ class InsNode:
     def _end(self, msg: dict) -> None:
         self.wall_s = time.perf_counter() - self._wall0
         c = msg["counts"]
-        complete = (c.get("imu", 0), c.get("gnss", 0)) == (self.imu_count, self.gnss_count)
+        got = {"imu": self.imu_count, "gnss": self.gnss_count, **self._aid_counts()}
+        complete = all(c.get(kind, 0) == n for kind, n in got.items())
         (self.log.info if complete or self._late else self.log.error)(
-            "end of stream %s: consumed %d/%d IMU, %d/%d GNSS in %.2f s; merger %s", self.follower.dataset,
-            self.imu_count, c.get("imu", 0), self.gnss_count, c.get("gnss", 0), self.wall_s,
+            "end of stream %s: consumed %s in %.2f s; merger %s", self.follower.dataset,
+            ", ".join(f"{n}/{c.get(kind, 0)} {kind}" for kind, n in got.items()), self.wall_s,
             self.follower.status())
+        if self._held:  # none by construction (zennav.replay.sensor_events): a forged stream
+            self.log.error("%d aid samples after the last IMU sample not fused", len(self._held))
+            self._held.clear()
         self.publish("status", self.status_msg())
         self.on_state(f"stream {self.follower.dataset} done: {self.imu_count} IMU, {self.gnss_count} GNSS, "
                       f"{self.sol_count} solutions")
@@ -233,9 +254,15 @@ class InsNode:
             {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s, **self.recovery},
             {**self.bus_rejected(), **self.follower.counts}, self.imu_count, self.gnss_count,
             {"corrections_received": self.corrections,
-             **(self.learn.status() if self.learn is not None else {"learning": False, "corrections_fused": 0})})
+             **(self.learn.status() if self.learn is not None else {"learning": False, "corrections_fused": 0})},
+            self._aid_counts())
+
+    def _aid_counts(self) -> dict:
+        """Aid samples consumed per aid stream of the live stream (those its start counts)."""
+        start = self.follower.start
+        return {a: self.aid_count[a] for a in (start["counts"] if start else ()) if a in M.AID_STREAMS}
 
     def counters(self) -> dict:
-        return {"imu": self.imu_count, "gnss": self.gnss_count, "solutions": self.sol_count,
+        return {"imu": self.imu_count, "gnss": self.gnss_count, **self.aid_count, "solutions": self.sol_count,
                 **{f"drop_{a}": b for a, b in self.follower.counts.items()}, **self.recovery,
                 **({f"learn_{a}": b for a, b in dict(self.learn.counts).items()} if self.learn is not None else {})}
