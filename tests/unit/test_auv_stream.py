@@ -1,0 +1,192 @@
+"""The AUV's sensors on the bus (issue 14 item 7): the dvl and depth schemas and their validation, their place in
+the one selection of sensor events (zennav.replay.sensor_events) and in the stream (zennav.stream), and the ins
+core (zennav.nodes.ins.InsNode) handing them to the engine as the in-process replay does."""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import pytest
+
+from zennav import messages as M
+from zennav.datasets.registry import load_dataset
+from zennav.nav.beams import beams_from_velocity, janus_directions
+from zennav.nav.rotation import euler_to_dcm
+from zennav.nav.types import DepthData, DvlData, DvlSample
+from zennav.replay import run_replay, sensor_events
+from zennav.stream import stream_messages
+
+K = M.Keys("auv")
+KEY = {"imu": K.imu(), "gnss": K.gnss(), "dvl": K.dvl(), "depth": K.depth(), "stream": K.stream()}
+log = logging.getLogger("test")
+
+
+def _head(msg: dict, src: str = "ingest.a") -> dict:
+    return {**msg, "src": src, "seq": 0, "pub_ns": 0}
+
+
+def auv_like(duration_s: float = 30.0, seed: int = 3):
+    """The simulated car with a DVL (5 Hz beams from the true velocity, a beam lost now and then, seeded) and a
+    depth sensor (2 Hz): a dataset with every aid stream, for the stream's bookkeeping."""
+    ds = load_dataset("sim:car", duration_s=duration_s)
+    rng = np.random.default_rng(seed)
+    tr = ds.truth
+    t_dvl = np.arange(tr.t_ns[0] + 100_000_000, tr.t_ns[-1], 200_000_000, dtype=np.int64)
+    k = np.searchsorted(tr.t_ns, t_dvl)
+    v_b = np.array([euler_to_dcm(tr.euler[i]).T @ tr.v_n[i] for i in k])
+    beams = beams_from_velocity(v_b, janus_directions(ds.config.dvl_tilt, ds.config.dvl_layout))
+    valid = rng.random(beams.shape) > 0.1
+    beams[~valid] = np.nan
+    ds.dvl = DvlData(t_dvl, beams + 0.01 * rng.standard_normal(beams.shape), valid)
+    t_depth = np.arange(tr.t_ns[0] + 50_000_000, tr.t_ns[-1], 500_000_000, dtype=np.int64)
+    h = tr.llh[np.searchsorted(tr.t_ns, t_depth), 2]
+    ds.config = ds.config.with_(depth_surface_h_m=float(h.max() + 10.0))
+    ds.depth = DepthData(t_depth, ds.config.depth_surface_h_m - h)
+    return ds
+
+
+def _msgs(ds, batch: int = 1) -> list[tuple[str, dict]]:
+    windows, events = sensor_events(ds)
+    return [(KEY[kind], _head(m)) for kind, m in stream_messages(ds, windows, events, batch)]
+
+
+def test_dvl_schema_accepts_both_kinds_and_refuses_what_is_malformed():
+    beams = DvlSample(5, np.array([1.0, np.nan, 2.0, 3.0]), np.array([True, False, True, True]))
+    m = _head(M.dvl_msg(beams, 7))
+    assert m["beams"] == [1.0, 0.0, 2.0, 3.0] and m["beam_valid"] == [True, False, True, True]
+    assert M.validate_map(m, K.dvl()) == ""
+    back = M.dvl_sample(m)
+    assert back.t_ns == 5 and np.isnan(back.beams[1]) and back.beams[3] == 3.0 and back.beam_valid.tolist() == \
+        [True, False, True, True] and back.velocity_d is None
+    vel = _head(M.dvl_msg(DvlSample(6, velocity_d=np.array([1.0, 0.1, 0.0]), velocity_valid=True), 8))
+    assert M.validate_map(vel, K.dvl()) == "" and "beams" not in vel
+    assert M.dvl_sample(vel).velocity_d.tolist() == [1.0, 0.1, 0.0]
+    lost = M.dvl_msg(DvlSample(7, velocity_d=np.array([np.nan, 0.0, 0.0]), velocity_valid=True), 9)
+    assert lost["velocity_valid"] is False and lost["velocity_d"] == [0.0, 0.0, 0.0]  # NaN never travels
+    bad = {
+        "not_finite": {**m, "beams": [1.0, math.nan, 2.0, 3.0]},
+        "bad_shape": {**m, "beams": [1.0, 2.0, 3.0]},
+        "bad_type": {**m, "beam_valid": [1, 0, 1, 1]},
+        "bad_type ": {**m, "beam_valid": [True, True, True]},
+        "missing_field": {k: v for k, v in m.items() if k not in ("beams", "beam_valid")},
+        "bad_shape ": {**vel, "velocity_valid": None},
+        "wrong_schema": {**m, "schema": "depth", "depth_m": 3.0},
+    }
+    for code, msg in bad.items():
+        assert M.validate_map(msg, K.dvl()).split(":")[0] == code.strip(), code
+    assert M.validate_map(bad["not_finite"], K.dvl()).startswith("not_finite: beams[1]")
+    depth = _head(M.depth_msg(M.depth_sample({"t_ns": 3, "depth_m": 12.5}), 4))
+    assert M.validate_map(depth, K.depth()) == "" and M.depth_sample(depth).depth_m == 12.5
+    assert M.validate_map({**depth, "depth_m": math.inf}, K.depth()).startswith("not_finite")
+    assert M.validate_map(depth, K.dvl()).startswith("wrong_schema")
+    v = M.Validator()  # the bus's path: decode, validate, count the reason
+    assert v.check(K.dvl(), M.encode(bad["bad_shape"]))[0] is None and v.rejected["bad_shape"] == 1
+    assert M.stream_of(K.dvl("fwd")).qos == M.stream_of(K.gnss()).qos and M.stream_of(K.depth()).time == "cseq"
+
+
+def test_aid_samples_go_before_the_imu_sample_that_reaches_their_time():
+    """In the one selection, every DVL and depth sample of the run (after the initial time, up to the last IMU
+    sample; GNSS outages do not withhold them) comes right before the first IMU sample at or after its time; the
+    stream counts them, and an imu_batch is cut before each."""
+    ds = auv_like()
+    windows, events = sensor_events(ds, [(10.0, 5.0)])
+    t_imu = ds.imu.t_ns
+    for i, (kind, k) in enumerate(events):
+        if kind in M.AID_STREAMS:
+            t = getattr(ds, kind).t_ns[k]
+            nxt = next(e for e in events[i:] if e[0] == "imu")
+            prev = next((e for e in events[i::-1] if e[0] == "imu"), None)
+            assert t_imu[nxt[1]] >= t and (prev is None or t_imu[prev[1]] < t)
+    t0 = ds.initial.t_ns
+    for kind in M.AID_STREAMS:
+        t = getattr(ds, kind).t_ns
+        want = np.flatnonzero((t > t0) & (t <= t_imu[-1])).tolist()
+        assert [k for e, k in events if e == kind] == want
+    for batch in (1, 50):
+        msgs = [m for _, m in _msgs(ds, batch)]
+        counts = msgs[0]["counts"]
+        assert counts == msgs[-1]["counts"] and set(counts) == {"imu", "gnss", "dvl", "depth"}
+        assert counts["dvl"] == sum(1 for m in msgs if m["schema"] == "dvl") > 100
+        assert counts["depth"] == sum(1 for m in msgs if m["schema"] == "depth") > 50
+        cseqs = [c for m in msgs for c in ([m["cseq"] + i for i in range(len(m["t_ns_list"]))]
+                                           if m["schema"] == "imu_batch" else [m["cseq"]])]
+        assert cseqs == list(range(len(cseqs)))
+        assert all(M.validate_map(m, KEY[m["schema"] if m["schema"] in KEY else "imu"]) == "" for m in msgs
+                   if m["schema"] not in ("stream_start", "stream_end"))
+    plain = load_dataset("sim:car", duration_s=30.0)  # no aid streams: the stream as before
+    assert set(_msgs(plain)[0][1]["counts"]) == {"imu", "gnss"}
+
+
+def test_ins_core_hands_aid_samples_to_the_engine_as_the_replay_does():
+    """InsNode over the stream (as the bus delivers it, in order and shuffled within the merge's window): every
+    DVL and depth sample reaches the engine (counted, stream end complete) and the solutions are the in-process
+    replay's, bit for bit."""
+    from zennav.nodes.ins import InsNode
+
+    ds = auv_like()
+    ref = run_replay(ds)
+    msgs = _msgs(ds)
+    rng = np.random.default_rng(1)
+    shuffled = list(msgs)
+    for i in range(1, len(shuffled) - 8, 8):  # reorder within blocks of 8 (the merge restores cseq order)
+        block = shuffled[i:i + 8]
+        rng.shuffle(block)
+        shuffled[i:i + 8] = block
+    for order in (msgs, shuffled):
+        out: dict = {"solution": [], "status": [], "aid": []}
+        node = InsNode(lambda kind, m, out=out: out[kind].append(m), log)
+        for key, m in order:
+            node.on_sensor(key, m)
+        end = out["status"][-1]
+        start = msgs[0][1]
+        assert node.follower.done and end["aid_counts"] == {"dvl": start["counts"]["dvl"],
+                                                            "depth": start["counts"]["depth"]}
+        assert M.validate_map(_head(end), K.nav_status()) == ""
+        assert [m["t_ns"] for m in out["solution"]] == ref.t_ns.tolist()
+        assert np.array_equal(np.array([m["llh"] for m in out["solution"]]), ref.llh)
+        assert np.array_equal(np.array([m["v_n"] for m in out["solution"]]), ref.v_n)
+        assert [(r["source"], r["t_ns"], r["fused"]) for r in out["aid"]] == \
+            [(r.source, r.t_ns, r.fused) for r in ref.reports]
+
+
+def test_ins_refuses_aid_samples_out_of_the_stream_time():
+    """A DVL sample whose time is far from the stream's (forged, or a clock jump) is refused at its turn (counted
+    time_jump / time_backwards, its slot left open for the genuine one), never handed to the engine."""
+    from zennav.nodes.ins import InsNode
+
+    ds = auv_like(10.0)
+    msgs = _msgs(ds)
+    i = next(i for i, (_k, m) in enumerate(msgs) if m["schema"] == "dvl")
+    key, genuine = msgs[i]
+    node = InsNode(lambda kind, m: None, log)
+    for k, m in msgs[:i]:
+        node.on_sensor(k, m)
+    node.on_sensor(key, {**genuine, "t_ns": genuine["t_ns"] + 60 * 10**9})
+    node.on_sensor(key, {**genuine, "t_ns": genuine["t_ns"] - 60 * 10**9})
+    for k, m in msgs[i:]:
+        node.on_sensor(k, m)
+    st = node.follower.status()
+    assert st["time_jump"] == 1 and st["time_backwards"] == 1 and node.follower.done
+    assert node.aid_count["dvl"] == msgs[0][1]["counts"]["dvl"]
+
+
+@pytest.mark.parametrize("n", [0, 1])
+def test_checkpoint_keeps_the_aid_counts(tmp_path, n):
+    """The aid counts survive a checkpoint resume (a restarted ins reports the whole stream's counts)."""
+    from zennav.checkpoint import Checkpointer
+    from zennav.nodes.ins import InsNode
+
+    ds = auv_like(20.0)
+    msgs = _msgs(ds)
+    path = tmp_path / "ins.ckpt"
+    first = InsNode(lambda kind, m: None, log, checkpoint=Checkpointer(path, 5.0))
+    cut = next(i for i, (_k, m) in enumerate(msgs) if m["t_ns"] > ds.initial.t_ns + 12 * 10**9)
+    for key, m in msgs[:cut]:
+        first.on_sensor(key, m)
+    status: list = []
+    second = InsNode(lambda kind, m: status.append(m) if kind == "status" else None, log,
+                     checkpoint=Checkpointer(path if n else None, 5.0))
+    for key, m in (msgs[cut - 2000:] if n else msgs):
+        second.on_sensor(key, m)
+    assert second.follower.done and status[-1]["aid_counts"]["dvl"] == msgs[0][1]["counts"]["dvl"]
