@@ -7,8 +7,8 @@ while it runs (``RunRecorder.on_epoch``, zennav.replay.run_replay's hook, which 
   from it);
 - ``biases.csv``: once per second of data, the estimated gyro [deg/h] and accelerometer [mg] biases (body FRD)
   with their 1-sigma from the filter covariance;
-- ``--mcap FILE``: every solution (nav_solution), GNSS fix fed (gnss) and aid report (aid_report) as zennav
-  messages with their Foxglove views (zennav.recording.McapRecorder), log time = sample time.
+- ``--mcap FILE``: every solution (nav_solution), GNSS fix, DVL and depth sample fed (gnss, dvl, depth) and aid
+  report (aid_report) as zennav messages with their Foxglove views (zennav.recording.McapRecorder), log time = sample time.
 """
 from __future__ import annotations
 
@@ -59,12 +59,16 @@ class RunRecorder:
         self.rec.add_message(key, msg)
 
     def finish(self, ds, events: list, reports: list) -> None:
-        """The GNSS fixes fed and the aid reports into the MCAP (after the solutions), and close it."""
+        """The GNSS fixes, DVL and depth samples fed and the aid reports into the MCAP (after the solutions), and
+        close it."""
         if self.rec is None:
             return
         for cseq, (kind, k) in enumerate(events, 1):
             if kind == "gnss":
                 self._add(self.keys.gnss("0"), M.gnss_msg(ds.gnss.fix_at(k), cseq))
+            elif kind in M.AID_STREAMS:
+                key = self.keys.dvl("0") if kind == "dvl" else self.keys.depth("0")
+                self._add(key, M.aid_msg(kind, getattr(ds, kind).sample(k), cseq))
         for r in reports:
             self._add(self.keys.nav_aid(r.source), M.aid_report_msg(r))
         self.rec.close()

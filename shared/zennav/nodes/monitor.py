@@ -5,10 +5,11 @@ Per key: message count and rate, lag publish->receive (wall clock, from the mess
 gaps per publisher), rejections by reason (this monitor's own validator). Per service: alive or not, state and
 detail from its status heartbeat, its own rejection counters. Navigation: GNSS state, counts, stream progress,
 alignment (state, method, heading 1-sigma, when each state began) and the live measurement noise R per GNSS
-source (diagonal, ratio to the reported R, adaptive branch; adaptive on/off); innovation test ratios per aid
-source; attitude (roll/pitch/yaw, gyro bias, rejection weight, whether the earth and transport rate is
-applied); the live model version per model name. A second ins publishing under a nav prefix
-(``zennav-ins --nav-prefix plain``: <base>/nav/plain/...) is kept apart: its status under ``navs[prefix]``, its
+source (diagonal, ratio to the reported R, adaptive branch; adaptive on/off); an AUV's DVL and depth samples
+consumed and the engine's dvl*/depth* counters (beam cases, rejections); innovation test ratios per aid source;
+attitude (roll/pitch/yaw, gyro bias, rejection weight, whether the earth and transport rate is applied); the
+live model version per model name. A second ins publishing under a nav prefix (``zennav-ins --nav-prefix
+plain``: <base>/nav/plain/...) is kept apart: its status under ``navs[prefix]``, its
 aid sources as '<prefix>/<source>'.
 
 Health (``services[s]["health"]`` and ``["why"]``), judged here from what the monitor sees, not from what a service
@@ -32,6 +33,7 @@ DEG_PER_H = 180.0 / math.pi * 3600.0  # [deg/h] per [rad/s]
 PROGRESS = ((("sensor/imu",), ("imu",)),  # ins (any nav prefix), attitude: IMU samples processed
             (("learn/samples",), ("received_",)),  # trainer: samples taken per target
             (("learn/query",), ("queries_",)))  # predictor: queries answered or refused
+UNDERWATER = ("dvl", "depth")  # prefixes of the engine counters of the AUV's sources (beam cases, rejections)
 NOT_JOINED = ("drop_no_stream", "drop_foreign_source")  # an ins's samples dropped as not of its stream
 
 
@@ -138,6 +140,8 @@ class MonitorState:
             nav.update(keep, t_ns=msg["t_ns"], gnss_state=msg["gnss_state"], imu_count=msg["imu_count"],
                        gnss_count=msg["gnss_count"], counters=msg["counters"], rejected=msg["rejected"],
                        stream=msg["stream"], model=msg["model"])
+            if msg.get("aid_counts") is not None:  # an AUV's stream: DVL and depth samples consumed
+                nav["aid_counts"] = msg["aid_counts"]
             al = msg.get("alignment")
             if al is not None:  # optional fields (older ins: absent)
                 nav["alignment"] = {**al, "heading_std_deg": round(math.degrees(al["heading_std_rad"]), 4),
@@ -263,6 +267,10 @@ def format_table(snap: dict) -> str:
     if nav:
         lines += ["", f"NAV  gnss {nav.get('gnss_state')}  imu {nav.get('imu_count')}  gnss {nav.get('gnss_count')}  "
                       f"stream {nav.get('stream', {}).get('dataset', '')} done={nav.get('stream', {}).get('done')}"]
+        if nav.get("aid_counts"):
+            underwater = {k: v for k, v in nav.get("counters", {}).items() if k.startswith(UNDERWATER)}
+            lines.append("  " + "  ".join(f"{k} {n}" for k, n in nav["aid_counts"].items()) +
+                         f"  engine {underwater or '{}'}"[:200])
         al = nav.get("alignment")
         if al:
             times = ", ".join(f"{s} {t:.1f} s" for s, t in al["times_s"].items())
