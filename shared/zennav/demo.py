@@ -130,19 +130,20 @@ class _Tee:
 
 class _Collector:
     """The distributed run as the demo process receives it (lossless fifo subscriptions): the stream start,
-    every solution and the end-of-stream status of both ins; ``complete`` is set once all are in."""
+    every solution and the end-of-stream status of each ins (by nav prefix); ``complete`` is set once all are
+    in."""
 
-    def __init__(self, bus: Bus) -> None:
+    def __init__(self, bus: Bus, prefixes: tuple[str, ...] = tuple(RUNS)) -> None:
         from .messages import Keys
 
         self.start: dict | None = None
         self.status: dict[str, dict] = {}
-        self.solutions: dict[str, list[dict]] = {p: [] for p in RUNS}
+        self.solutions: dict[str, list[dict]] = {p: [] for p in prefixes}
         self.solution_keys: dict[str, str] = {}
         self.complete = threading.Event()
         self._lock = threading.Lock()
         bus.subscribe(bus.keys.stream(), self._on_stream, channel="fifo", name="demo-stream")
-        for prefix in RUNS:
+        for prefix in prefixes:
             k = Keys(bus.keys.vehicle, nav_prefix=prefix)
             self.solution_keys[prefix] = k.nav_solution()
             bus.subscribe(k.nav_solution(), partial(self._on_solution, prefix), channel="fifo", capacity=65536,
@@ -166,7 +167,7 @@ class _Collector:
     def _check(self) -> None:
         with self._lock:
             if all(p in self.status and len(self.solutions[p]) >= self.status[p]["stream"]["solutions"]
-                   for p in RUNS):
+                   for p in self.solutions):
                 self.complete.set()
 
 
@@ -218,11 +219,12 @@ def _background(fn: Callable[[], _T]) -> Callable[[], _T]:
 
 
 def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: float,
-            during: Callable[[Launcher, _Collector], object] | None = None) -> tuple[Path, _Collector]:
-    """Launch the process set until the recorder and the demo have every solution of both ins; returns the
-    recording's path and what the demo received. settings: the learning loop's (the trainer gets them).
-    during(launcher, collector): run in a thread while the set runs (benchmarks/fault_injection.py kills
-    services with it)."""
+            during: Callable[[Launcher, _Collector], object] | None = None,
+            prefixes: tuple[str, ...] = tuple(RUNS)) -> tuple[Path, _Collector]:
+    """Launch the process set until the recorder and the demo have every solution of each ins (prefixes: their
+    nav prefixes); returns the recording's path and what the demo received. settings: the learning loop's (the
+    trainer gets them). during(launcher, collector): run in a thread while the set runs
+    (benchmarks/fault_injection.py kills services with it)."""
     from .bus import Bus
 
     if not launch_file.is_file():
@@ -260,7 +262,7 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
                f"multicast scouting off; full log: {log}")
     bus = Bus(f"demo-{os.getpid()}", launch.vehicle, mode="peer", connect=[launch.rendezvous],
               listen=["tcp/127.0.0.1:0"], token=False)
-    collector = _Collector(bus)
+    collector = _Collector(bus, prefixes)
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     with open(log, "w") as f:
         tee = _Tee(f)
@@ -286,18 +288,22 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
     raise click.ClickException(f"demo failed: {why} (every process was stopped; full log: {log})")
 
 
-def pipeline_result(got: _Collector, prefix: str, recorded: dict[str, int]) -> Pipeline:
+def pipeline_result(got: _Collector, prefix: str, recorded: dict[str, int], label: str = "") -> Pipeline:
     """One ins's distributed solution as a ReplayResult, checked: nothing lost or duplicated between ingest,
-    that ins, the demo and the recording (recorded: messages per key); raises ClickException otherwise."""
+    that ins, the demo and the recording (recorded: messages per key; the DVL and depth samples too where the
+    stream has them); raises ClickException otherwise. label: the ins's name in messages (default: RUNS)."""
     start, status, sols = got.start, got.status[prefix], got.solutions[prefix]
     if start is None:
         raise click.ClickException("no stream_start received from ingest")
-    who = f"ins ({RUNS[prefix]})"
+    who = f"ins ({label or RUNS[prefix]})"
     counts, st = start["counts"], status["stream"]
     key = got.solution_keys[prefix]
+    aids = status.get("aid_counts") or {}
     problems = [f"{what}: {n} of {want}" for what, n, want in
                 ((f"IMU consumed by {who}", status["imu_count"], counts["imu"]),
                  (f"GNSS consumed by {who}", status["gnss_count"], counts["gnss"]),
+                 *((f"{a} samples consumed by {who}", aids.get(a, 0), n) for a, n in counts.items()
+                   if a not in ("imu", "gnss")),
                  (f"solutions of {who} received", len(sols), counts["imu"]),
                  (f"solutions of {who} recorded", recorded.get(key, 0), counts["imu"])) if n != want]
     problems += [f"{n} {what} ({who})" for what in ("gap", "duplicate") if (n := st.get(what, 0))]

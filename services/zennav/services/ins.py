@@ -34,7 +34,8 @@ from zennav import messages as M
 from zennav.checkpoint import Checkpointer
 from zennav.learn.link import LearningLink
 from zennav.nodes.ins import InsNode
-from zennav.params import ParamError, load_filter_params
+from zennav.params import ParamError
+from zennav.replay_cli import filter_settings
 from zennav.service import ServiceRunner, add_bus_args
 from zennav.stream import start_ticker
 
@@ -44,6 +45,9 @@ LOCKSTEP_QUEUE = 1 << 24  # sensor messages buffered with --lockstep (a replay's
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="zennav-ins", description="zennav ins service: GNSS/INS navigation engine")
     p.add_argument("--params", default=None, help="filter parameter file, human units (default deploy/ins.yaml)")
+    p.add_argument("--profile", default=None,
+                   help="a vehicle profile of the parameter file (car, auv, ...; none) that sets the vehicle "
+                        "constraints, as `zennav replay --profile` (default: the file's own switches)")
     p.add_argument("--nav-prefix", default="", help="publish on <base>/nav/<prefix>/... (a second ins)")
     p.add_argument("--imu-id", default="0")
     p.add_argument("--gnss-id", default="0")
@@ -86,7 +90,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     run = ServiceRunner("ins", args)
     try:
-        filter_params, out = load_filter_params(args.params), M.Keys(run.keys.vehicle, args.nav_prefix)
+        filter_params = filter_settings("", args.params, args.profile, None)
+        out = M.Keys(run.keys.vehicle, args.nav_prefix)
     except (ParamError, ValueError) as e:
         return run.fail(f"bad ins parameters: {e}")
     import zennav.nav.navigator  # noqa: F401  (import the core, scipy included, before announcing)
