@@ -153,3 +153,34 @@ def write_solution(out_dir: Path, res: ReplayResult) -> None:
     )
     np.savetxt(out_dir / "nav.csv", cols, delimiter=",", header=header, comments="",
                fmt=["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%d"])
+
+
+UNDERWATER_DEPTH_M = 0.5  # [m] the truth deeper than this below the water surface is under water (no GNSS)
+
+
+def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_M) -> list[dict]:
+    """Each stretch of the truth under water (depth = config.depth_surface_h_m - truth height > min_depth_m [m])
+    inside the solution's span: its start and end [s from the initial time], the horizontal distance travelled
+    [m] (the truth's path), the horizontal error at its end and the largest within it [m], and the drift at its
+    end as a percentage of that distance (the figure INS/DVL navigation is quoted in)."""
+    truth = ds.truth
+    if truth is None or len(res.t_ns) < 2:
+        return []
+    sel = np.flatnonzero((truth.t_ns >= res.t_ns[0]) & (truth.t_ns <= res.t_ns[-1]))
+    deep = ds.config.depth_surface_h_m - truth.llh[sel, 2] > min_depth_m
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], deep.astype(np.int8), [0]])))
+    t0 = int(ds.initial.t_ns)
+    out = []
+    for a, b in zip(edges[0::2], edges[1::2]):
+        idx = sel[a:b]
+        if len(idx) < 2:
+            continue
+        ref = truth.llh[idx]
+        e = ned_errors(_interp(truth.t_ns[idx], res.t_ns, res.llh), ref)
+        err = np.hypot(e[:, 0], e[:, 1])
+        step = ned_errors(ref[1:], ref[:-1])
+        dist = float(np.hypot(step[:, 0], step[:, 1]).sum())
+        out.append({"start_s": (int(truth.t_ns[idx[0]]) - t0) / NS, "end_s": (int(truth.t_ns[idx[-1]]) - t0) / NS,
+                    "distance_m": dist, "end_horizontal_m": float(err[-1]), "max_horizontal_m": float(err.max()),
+                    "drift_pct": 100.0 * float(err[-1]) / dist if dist > 0 else None})
+    return out
