@@ -190,3 +190,29 @@ def test_checkpoint_keeps_the_aid_counts(tmp_path, n):
     for key, m in (msgs[cut - 2000:] if n else msgs):
         second.on_sensor(key, m)
     assert second.follower.done and status[-1]["aid_counts"]["dvl"] == msgs[0][1]["counts"]["dvl"]
+
+
+def test_dives_score_each_stretch_under_water():
+    """zennav.metrics.dives: a truth under water between 30 and 50 s (5 m below the surface) and a solution that
+    drifts north at 0.1 m/s from 30 s: one dive, its path length, 2 m error at its end, drift = 2 m / distance."""
+    from zennav.metrics import dives, ned_errors
+    from zennav.nav import earth
+    from zennav.replay import ReplayResult
+
+    ds = load_dataset("sim:car", duration_s=60.0)
+    tr = ds.truth
+    s = (tr.t_ns - ds.initial.t_ns) / 1e9
+    ds.config = ds.config.with_(depth_surface_h_m=0.0)
+    tr.llh[:, 2] = np.where((s >= 30.0) & (s < 50.0), -5.0, 0.0)
+    north = np.clip(s - 30.0, 0.0, None) * 0.1
+    dlat, _, _ = earth.ned_to_dllh(np.stack([north, 0 * north, 0 * north]), tr.llh[:, 0], tr.llh[:, 2])
+    llh = tr.llh + np.column_stack([dlat, 0 * north, 0 * north])
+    res = ReplayResult("x", tr.t_ns, llh, np.zeros_like(llh), np.tile([1.0, 0, 0, 0], (len(s), 1)),
+                       np.zeros_like(llh), np.zeros(len(s), bool), [])
+    (d,) = dives(ds, res)
+    inside = (s >= 30.0) & (s < 50.0)
+    step = ned_errors(tr.llh[inside][1:], tr.llh[inside][:-1])
+    assert d["start_s"] == pytest.approx(30.0, abs=0.02) and d["end_s"] == pytest.approx(50.0, abs=0.02)
+    assert d["distance_m"] == pytest.approx(np.hypot(step[:, 0], step[:, 1]).sum()) and d["distance_m"] > 50.0
+    assert d["end_horizontal_m"] == pytest.approx(2.0, abs=0.01) == d["max_horizontal_m"]
+    assert d["drift_pct"] == pytest.approx(100.0 * d["end_horizontal_m"] / d["distance_m"])
