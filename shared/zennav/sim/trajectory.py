@@ -491,9 +491,9 @@ def auv_trajectory(duration_s: float, seed=0, start_llh=(0.5328, 1.9959, 0.0), s
     """Random AUV mission of duration_s [s] picked by seed, starting at the surface (start_llh's height is the water
     surface): 3 s still, speed-up to 1.5 m/s, surface manoeuvres (turns of 20-60 m radius) until surface_s [s], then
     a dive at dive_pitch [rad] to 40-100 % of max_depth_m [m], and under water: straight legs, turns of 90-180 deg at
-    up to max_turn_rate [rad/s], speed changes within [min_speed, max_speed] [m/s] and depth changes of 5-15 m at 5-10 deg
-    pitch, between 5 m and max_depth_m. The vehicle flies without sideslip (pitch = flight-path angle, a small roll
-    into turns): a CarTrajectory whose "grade" is the flight-path angle (negative: diving)."""
+    up to max_turn_rate [rad/s], speed changes within [min_speed, max_speed] [m/s] and depth changes of 5-15 m at
+    5-10 deg pitch, between 5 m and max_depth_m. The vehicle flies without sideslip (pitch = flight-path angle, a small
+    roll into turns): a CarTrajectory whose "grade" is the flight-path angle (negative: diving)."""
     rng = np.random.default_rng(seed)
     tr: dict[str, list[tuple[float, float, float]]] = {"speed": [], "turn": [], "grade": []}
     t, v, height = 3.0, 0.0, 0.0
