@@ -11,9 +11,7 @@ import pytest
 
 from zennav import messages as M
 from zennav.datasets.registry import load_dataset
-from zennav.nav.beams import beams_from_velocity, janus_directions
-from zennav.nav.rotation import euler_to_dcm
-from zennav.nav.types import DepthData, DvlData, DvlSample
+from zennav.nav.types import DvlSample
 from zennav.replay import run_replay, sensor_events
 from zennav.stream import stream_messages
 
@@ -26,24 +24,10 @@ def _head(msg: dict, src: str = "ingest.a") -> dict:
     return {**msg, "src": src, "seq": 0, "pub_ns": 0}
 
 
-def auv_like(duration_s: float = 30.0, seed: int = 3):
-    """The simulated car with a DVL (5 Hz beams from the true velocity, a beam lost now and then, seeded) and a
-    depth sensor (2 Hz): a dataset with every aid stream, for the stream's bookkeeping."""
-    ds = load_dataset("sim:car", duration_s=duration_s)
-    rng = np.random.default_rng(seed)
-    tr = ds.truth
-    t_dvl = np.arange(tr.t_ns[0] + 100_000_000, tr.t_ns[-1], 200_000_000, dtype=np.int64)
-    k = np.searchsorted(tr.t_ns, t_dvl)
-    v_b = np.array([euler_to_dcm(tr.euler[i]).T @ tr.v_n[i] for i in k])
-    beams = beams_from_velocity(v_b, janus_directions(ds.config.dvl_tilt, ds.config.dvl_layout))
-    valid = rng.random(beams.shape) > 0.1
-    beams[~valid] = np.nan
-    ds.dvl = DvlData(t_dvl, beams + 0.01 * rng.standard_normal(beams.shape), valid)
-    t_depth = np.arange(tr.t_ns[0] + 50_000_000, tr.t_ns[-1], 500_000_000, dtype=np.int64)
-    h = tr.llh[np.searchsorted(tr.t_ns, t_depth), 2]
-    ds.config = ds.config.with_(depth_surface_h_m=float(h.max() + 10.0))
-    ds.depth = DepthData(t_depth, ds.config.depth_surface_h_m - h)
-    return ds
+def auv_like(duration_s: float = 60.0):
+    """A short simulated AUV (zennav.sim.auv): 20 s at the surface with GNSS, then a dive with DVL beams (a beam
+    lost now and then, the bottom lost for 3 s) and depth; the engine runs its DVL and depth sources."""
+    return load_dataset("sim:auv", duration_s=duration_s, surface_s=20.0, dvl_bottom_loss="40:3", dvl_dropout=0.05)
 
 
 def _msgs(ds, batch: int = 1) -> list[tuple[str, dict]]:
@@ -107,8 +91,8 @@ def test_aid_samples_go_before_the_imu_sample_that_reaches_their_time():
         msgs = [m for _, m in _msgs(ds, batch)]
         counts = msgs[0]["counts"]
         assert counts == msgs[-1]["counts"] and set(counts) == {"imu", "gnss", "dvl", "depth"}
-        assert counts["dvl"] == sum(1 for m in msgs if m["schema"] == "dvl") > 100
-        assert counts["depth"] == sum(1 for m in msgs if m["schema"] == "depth") > 50
+        assert counts["dvl"] == sum(1 for m in msgs if m["schema"] == "dvl") > 200
+        assert counts["depth"] == sum(1 for m in msgs if m["schema"] == "depth") > 200
         cseqs = [c for m in msgs for c in ([m["cseq"] + i for i in range(len(m["t_ns_list"]))]
                                            if m["schema"] == "imu_batch" else [m["cseq"]])]
         assert cseqs == list(range(len(cseqs)))
@@ -146,8 +130,11 @@ def test_ins_core_hands_aid_samples_to_the_engine_as_the_replay_does():
         assert [m["t_ns"] for m in out["solution"]] == ref.t_ns.tolist()
         assert np.array_equal(np.array([m["llh"] for m in out["solution"]]), ref.llh)
         assert np.array_equal(np.array([m["v_n"] for m in out["solution"]]), ref.v_n)
-        assert [(r["source"], r["t_ns"], r["fused"]) for r in out["aid"]] == \
-            [(r.source, r.t_ns, r.fused) for r in ref.reports]
+        assert [(r["source"], r["t_ns"], r["fused"], r["reason"]) for r in out["aid"]] == \
+            [(r.source, r.t_ns, r.fused, r.reason) for r in ref.reports]
+        fused = {s: sum(1 for r in out["aid"] if r["source"] == s and r["fused"]) for s in ("dvl", "depth")}
+        assert fused["dvl"] > 200 and fused["depth"] > 200
+        assert end["counters"]["dvl_beams_0"] > 0 and end["counters"]["dvl_beams_3"] > 0
 
 
 def test_ins_refuses_aid_samples_out_of_the_stream_time():
@@ -173,7 +160,8 @@ def test_ins_refuses_aid_samples_out_of_the_stream_time():
 
 @pytest.mark.parametrize("n", [0, 1])
 def test_checkpoint_keeps_the_aid_counts(tmp_path, n):
-    """The aid counts survive a checkpoint resume (a restarted ins reports the whole stream's counts)."""
+    """The aid counts survive a checkpoint resume (a restarted ins reports the whole stream's counts), and the
+    resumed engine continues as the replay, bit for bit (n=0: the same ins without a checkpoint)."""
     from zennav.checkpoint import Checkpointer
     from zennav.nodes.ins import InsNode
 
@@ -185,11 +173,18 @@ def test_checkpoint_keeps_the_aid_counts(tmp_path, n):
     for key, m in msgs[:cut]:
         first.on_sensor(key, m)
     status: list = []
-    second = InsNode(lambda kind, m: status.append(m) if kind == "status" else None, log,
+    sols: dict = {}
+    second = InsNode(lambda kind, m: (status.append(m) if kind == "status" else
+                                      sols.__setitem__(m["t_ns"], m) if kind == "solution" else None), log,
                      checkpoint=Checkpointer(path if n else None, 5.0))
-    for key, m in (msgs[cut - 2000:] if n else msgs):
+    for key, m in (msgs[cut - 500:] if n else msgs):  # from before the checkpoint (duplicates for the merge)
         second.on_sensor(key, m)
-    assert second.follower.done and status[-1]["aid_counts"]["dvl"] == msgs[0][1]["counts"]["dvl"]
+    assert second.follower.done and second.recovery["resumed"] == n
+    assert status[-1]["aid_counts"] == {a: msgs[0][1]["counts"][a] for a in ("dvl", "depth")}
+    ref = run_replay(ds)  # resumed (the DVL and depth sources' states in the checkpoint) or not: the replay's
+    t = sorted(sols)
+    keep = ref.t_ns >= t[0]
+    assert np.array_equal(t, ref.t_ns[keep]) and np.array_equal([sols[x]["llh"] for x in t], ref.llh[keep])
 
 
 def test_dives_score_each_stretch_under_water():
