@@ -211,3 +211,31 @@ def test_dives_score_each_stretch_under_water():
     assert d["distance_m"] == pytest.approx(np.hypot(step[:, 0], step[:, 1]).sum()) and d["distance_m"] > 50.0
     assert d["end_horizontal_m"] == pytest.approx(2.0, abs=0.01) == d["max_horizontal_m"]
     assert d["drift_pct"] == pytest.approx(100.0 * d["end_horizontal_m"] / d["distance_m"])
+
+
+def test_monitor_shows_the_dvl_and_depth_records_and_counters():
+    """What the ins publishes for an AUV stream, fed to the monitor's core: the nav/aid/dvl and nav/aid/depth
+    records per source (fused, rejected), the DVL and depth samples consumed and the engine's partial-beam
+    counters in its table."""
+    from zennav.nodes.ins import InsNode
+    from zennav.nodes.monitor import MonitorState, format_table
+
+    ds = auv_like(30.0)
+    mon = MonitorState(K)
+    seq: dict = {}
+
+    def publish(kind: str, m: dict) -> None:
+        key = {"solution": K.nav_solution(), "status": K.nav_status()}.get(kind) or K.nav_aid(m["source"])
+        seq[key] = seq.get(key, -1) + 1
+        mon.on_sample(key, M.encode({**m, "src": "ins.x", "seq": seq[key], "pub_ns": 0}), 0)
+
+    node = InsNode(publish, log)
+    for key, m in _msgs(ds):
+        node.on_sensor(key, m)
+    snap = mon.snapshot()
+    counts = _msgs(ds)[0][1]["counts"]
+    assert snap["nav"]["aid_counts"] == {"dvl": counts["dvl"], "depth": counts["depth"]}
+    assert snap["aid"]["dvl"]["fused"] > 100 and snap["aid"]["depth"]["fused"] > 100
+    table = format_table(snap)
+    assert f"dvl {counts['dvl']}  depth {counts['depth']}  engine {{" in table and "'dvl_beams_4': " in table
+    assert "aid dvl " in table and "aid depth " in table
