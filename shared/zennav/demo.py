@@ -243,7 +243,7 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
         raise click.ClickException(f"{launch_file}: the ingest command must name its dataset first")
     ingest[1] = spec.dataset
     svc["ingest"].command = _with_options(ingest, {
-        "-o": [f"{k}={v!r}" for k, v in spec.options.items()],
+        "-o": [f"{k}={v if isinstance(v, str) else repr(v)}" for k, v in spec.options.items()],  # zennav-ingest -o
         "--outage": [f"{s!r}:{d!r}" for s, d in spec.outages],
         "--outage-every": [":".join(repr(float(x)) for x in spec.every)] if spec.every else []})
     svc["trainer"].command = _with_options(svc["trainer"].command, {

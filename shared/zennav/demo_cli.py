@@ -6,13 +6,16 @@ from pathlib import Path
 import click
 
 COMPENSATIONS = ("anfis", "anfis-pso", "elman")  # zennav.learn.settings.COMPENSATIONS (checked by a test)
-VEHICLES = {"car": ("sim:car", 600.0), "auv": ("sim:auv", 420.0)}  # --vehicle: default dataset, duration [s]
+# --vehicle: default dataset, duration [s] and its other loader options (the AUV's DVL loses the bottom for 10 s
+# of its dive, so that the no-beam case shows too)
+VEHICLES = {"car": ("sim:car", 600.0, {}), "auv": ("sim:auv", 300.0, {"dvl_bottom_loss": "220:10"})}
 
 
 @click.command()
 @click.option("--vehicle", type=click.Choice(tuple(VEHICLES)), default="car", show_default=True,
               help="car: the GNSS/INS learning loop (deploy/demo.yaml); auv: the AUV with DVL and depth "
-                   "(deploy/auv.yaml, zennav.demo_auv; sim:auv, 420 s: 120 s at the surface, then a dive).")
+                   "(deploy/auv.yaml, zennav.demo_auv; sim:auv, 300 s: 120 s at the surface, then a dive, the "
+                   "bottom lost 220..230 s).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Where the recording, nav.txt, nav.csv, metrics.json, the plots and the services' log go  "
                    "[default: out/demo, out/demo-auv]")
@@ -20,7 +23,7 @@ VEHICLES = {"car": ("sim:car", 600.0), "auv": ("sim:auv", 420.0)}  # --vehicle: 
               help="What ingest streams: any `zennav replay` DATASET (the simulated drives need no external data; "
                    "--vehicle auv: one with a DVL)  [default: sim:car, sim:auv]")
 @click.option("--duration", type=click.FloatRange(min=30.0), default=None,
-              help="Length of a simulated drive [s] (sim:* only)  [default: 600, auv 420]")
+              help="Length of a simulated drive [s] (sim:* only)  [default: 600, auv 300]")
 @click.option("--outage", "outages", multiple=True, metavar="START:DURATION",
               help="GNSS outage [s from the start] (repeatable)  [default: 300:60 unless --outage-every]")
 @click.option("--outage-every", "every", default=None, metavar="PERIOD:DURATION[:FIRST]",
@@ -56,7 +59,8 @@ def demo(vehicle, out, dataset, duration, outages, every, compensation, seed, la
     sim = dataset.startswith("sim:")
     if duration is not None and not sim:
         raise click.BadParameter("only a simulated drive (sim:*) has a duration", param_hint="--duration")
-    options = {"duration_s": float(duration or VEHICLES[vehicle][1])} if sim else {}
+    options = {"duration_s": float(duration or VEHICLES[vehicle][1]),
+               **(VEHICLES[vehicle][2] if dataset == VEHICLES[vehicle][0] else {})} if sim else {}
     if vehicle == "auv":
         from .demo_auv import AUV_LAUNCH, run_auv_demo
 

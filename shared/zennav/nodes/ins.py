@@ -216,7 +216,8 @@ class InsNode:
             self.log.error("%d aid samples after the last IMU sample not fused", len(self._held))
             self._held.clear()
         self.publish("status", self.status_msg())
-        self.on_state(f"stream {self.follower.dataset} done: {self.imu_count} IMU, {self.gnss_count} GNSS, "
+        aids = "".join(f", {n} {a}" for a, n in self._aid_counts().items())
+        self.on_state(f"stream {self.follower.dataset} done: {self.imu_count} IMU, {self.gnss_count} GNSS{aids}, "
                       f"{self.sol_count} solutions")
 
     def on_attitude(self, msg: dict, tilt_std_rad: float) -> bool:
