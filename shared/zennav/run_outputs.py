@@ -8,7 +8,8 @@ while it runs (``RunRecorder.on_epoch``, zennav.replay.run_replay's hook, which 
 - ``biases.csv``: once per second of data, the estimated gyro [deg/h] and accelerometer [mg] biases (body FRD)
   with their 1-sigma from the filter covariance;
 - ``--mcap FILE``: every solution (nav_solution), GNSS fix, DVL and depth sample fed (gnss, dvl, depth) and aid
-  report (aid_report) as zennav messages with their Foxglove views (zennav.recording.McapRecorder), log time = sample time.
+  report (aid_report) as zennav messages with their Foxglove views (zennav.recording.McapRecorder), log time =
+  sample time.
 """
 from __future__ import annotations
 
