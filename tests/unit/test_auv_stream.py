@@ -239,3 +239,24 @@ def test_monitor_shows_the_dvl_and_depth_records_and_counters():
     table = format_table(snap)
     assert f"dvl {counts['dvl']}  depth {counts['depth']}  engine {{" in table and "'dvl_beams_4': " in table
     assert "aid dvl " in table and "aid depth " in table
+
+
+def test_ins_with_the_loose_dvl_publishes_its_records_as_the_replay():
+    """An ins whose parameter file says dvl_mode: loose (the baseline): its nav/aid/dvl_loose records and its
+    solutions are the in-process replay's with the same settings."""
+    from zennav.nodes.ins import InsNode
+    from zennav.params import nav_config
+
+    ds = auv_like(40.0)
+    msgs = _msgs(ds)
+    out: dict = {"solution": [], "status": [], "aid": []}
+    node = InsNode(lambda kind, m: out[kind].append(m), log, filter_params={"dvl_mode": "loose"})
+    for key, m in msgs:
+        node.on_sensor(key, m)
+    ds.config = nav_config(ds.config, {"dvl_mode": "loose"})
+    ref = run_replay(ds)
+    loose = [(r["t_ns"], r["fused"]) for r in out["aid"] if r["source"] == "dvl_loose"]
+    assert len(loose) == msgs[0][1]["counts"]["dvl"] and sum(f for _, f in loose) > 100
+    assert not any(r["source"] == "dvl" for r in out["aid"])
+    assert loose == [(r.t_ns, r.fused) for r in ref.reports if r.source == "dvl_loose"]
+    assert np.array_equal(np.array([m["llh"] for m in out["solution"]]), ref.llh)
