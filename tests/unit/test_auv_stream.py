@@ -260,3 +260,17 @@ def test_ins_with_the_loose_dvl_publishes_its_records_as_the_replay():
     assert not any(r["source"] == "dvl" for r in out["aid"])
     assert loose == [(r.t_ns, r.fused) for r in ref.reports if r.source == "dvl_loose"]
     assert np.array_equal(np.array([m["llh"] for m in out["solution"]]), ref.llh)
+
+
+def test_auv_demo_cli_refuses_what_does_not_apply(tmp_path):
+    """`zennav demo --vehicle auv`: GNSS outages are not chosen (GNSS is absent under water), and a dataset without
+    a DVL is refused before any process starts."""
+    from click.testing import CliRunner
+
+    from zennav.demo_cli import demo
+
+    r = CliRunner().invoke(demo, ["--vehicle", "auv", "--outage", "10:5", "--out", str(tmp_path)])
+    assert r.exit_code == 2 and "no GNSS under water" in r.output
+    r = CliRunner().invoke(demo, ["--vehicle", "auv", "--dataset", "sim:car", "--duration", "30",
+                                  "--out", str(tmp_path)])
+    assert r.exit_code == 1 and "has no DVL" in r.output and not (tmp_path / "launch.log").exists()
