@@ -93,3 +93,15 @@ def test_tight_dvl_beats_pure_ins_and_loose_with_consistent_dvl_states(auv):
     assert c["dvl_fused"] > 0.9 * len(auv.dvl) - c["dvl_beams_0"] - c.get("dvl_gate", 0) and c["depth_fused"] > 0
     assert c["dvl_beams_0"] == 50 and c["dvl_beams_3"] > 0  # 10 s of bottom loss at 5 Hz; the dropouts
     assert res_loose.status["counters"]["dvl_loose_fused"] > 0 and "dvl_fused" not in res_loose.status["counters"]
+
+
+def test_vb_is_an_option_of_the_gnss_sources():
+    ds = load_dataset("sim:static", duration_s=20.0)
+    ds.config = ds.config.with_(vb_gnss=True)
+    nav = Navigator(ds.config, ds.initial)
+    res = run_replay(ds, navigator=nav)
+    for name in ("gnss_pos", "gnss_vel"):
+        vb = nav.sources[name].vb
+        assert vb is not None and vb.count == res.status["counters"][f"{name}_fused"] > 10
+        assert res.status["measurement_noise"][name]["vb_updates"] == vb.count
+    assert all(s.vb is None for s in Navigator(ds.config.with_(vb_gnss=False), ds.initial).sources.values())
