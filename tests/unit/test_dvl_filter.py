@@ -105,3 +105,14 @@ def test_vb_is_an_option_of_the_gnss_sources():
         assert vb is not None and vb.count == res.status["counters"][f"{name}_fused"] > 10
         assert res.status["measurement_noise"][name]["vb_updates"] == vb.count
     assert all(s.vb is None for s in Navigator(ds.config.with_(vb_gnss=False), ds.initial).sources.values())
+
+
+def test_vb_gate_rejects_an_outlier_without_learning_it():
+    """With the engine's gate, an innovation outside it (against the predictive R) leaves the estimator unchanged
+    and returns the current R, which the engine's gate then rejects; one inside is learned."""
+    vb = VariationalR()
+    HPHt, R_nom, gate = np.eye(2) * 0.01, np.eye(2) * 0.04, 13.8  # chi-square 0.999, 2 dof
+    R = vb.update(np.array([2.0, 0.0]), HPHt, R_nom, (0, 1), gate)
+    assert vb.count == 0 and vb.params == {} and np.allclose(R, R_nom)
+    R = vb.update(np.array([0.5, 0.0]), HPHt, R_nom, (0, 1), gate)  # d2 = 5: inside, and large: R grows
+    assert vb.count == 1 and R[0, 0] > R_nom[0, 0] and R[1, 1] < R_nom[1, 1]
