@@ -177,3 +177,14 @@ def test_no_dvl_data_no_sources_no_states():
     assert "dvl" not in nav.sources and "depth" not in nav.sources and nav.n_states == 15
     nav = _nav(dvl_mode="off", depth=False)
     assert not {"dvl", "dvl_loose", "depth"} & set(nav.sources)
+
+
+def test_state_round_trip_with_dvl_depth_and_vb():
+    """get_state / set_state carry the DVL and depth states and the VB estimator (the ins's checkpoint)."""
+    nav = _nav(vb_dvl=True)
+    src = nav.sources["dvl"]
+    assert nav.on_aid("dvl", _beams_at(nav, src, (1, 1, 1, 0), 0.01))
+    state = nav.get_state()
+    other = _nav(vb_dvl=True)
+    other.set_state(state)
+    assert other.get_state() == state and other.sources["dvl"].vb.count == 1
