@@ -196,7 +196,7 @@ class DvlTight(_DvlSource):
 
     def trial(self, nav, sample: DvlSample) -> BeamFeatures | None:
         """The sample's learning features (BeamFeatures) at the engine's state, nothing fused and the VB state
-        unchanged; None in coarse alignment."""
+        unchanged (the covariance is propagated to now, as a fuse would); None in coarse alignment."""
         if nav.align_state == AlignState.COARSE:
             return None
         beams, valid = self.beams_of(sample)
