@@ -127,6 +127,7 @@ def test_partial_beam_cases_are_counted_and_tight_fuses_the_valid_beams():
         assert nav.counters[f"dvl_beams_{case}"] == 1
         rep = nav.pop_reports()[-1]
         assert f"beams_{case}" in rep.faults and len(rep.innovation) == sum(valid) and rep.fused is fused
+        assert not fused or "valid_" + "".join(map(str, valid)) in rep.faults
     assert rep.reason == "dvl_beams_0" and "predicted" in rep.faults
 
 
