@@ -127,6 +127,7 @@ def test_partial_beam_cases_are_counted_and_tight_fuses_the_valid_beams():
         assert nav.counters[f"dvl_beams_{case}"] == 1
         rep = nav.pop_reports()[-1]
         assert f"beams_{case}" in rep.faults and len(rep.innovation) == sum(valid) and rep.fused is fused
+        assert not fused or "valid_" + "".join(map(str, valid)) in rep.faults
     assert rep.reason == "dvl_beams_0" and "predicted" in rep.faults
 
 
@@ -188,3 +189,14 @@ def test_state_round_trip_with_dvl_depth_and_vb():
     other = _nav(vb_dvl=True)
     other.set_state(state)
     assert other.get_state() == state and other.sources["dvl"].vb.count == 1
+
+
+def test_dvl_mode_in_the_parameter_file(tmp_path):
+    from zennav.params import ParamError, load_filter_params
+
+    p = tmp_path / "ins.yaml"
+    p.write_text("ins:\n  dvl:\n    dvl_mode: loose\n    dvl_scale_std: 1.0 %\n  vb:\n    vb_dvl: true\n")
+    assert load_filter_params(p) == {"dvl_mode": "loose", "dvl_scale_std": 0.01, "vb_dvl": True}
+    p.write_text("ins:\n  dvl:\n    dvl_mode: sideways\n")
+    with pytest.raises(ParamError, match=":3: dvl.dvl_mode: 'sideways' is not one of off, loose, tight"):
+        load_filter_params(p)
