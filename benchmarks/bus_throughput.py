@@ -115,7 +115,7 @@ def sink_main(argv) -> int:
     from zennav.stream import StreamFollower
 
     p = add_bus_args(argparse.ArgumentParser())
-    p.add_argument("--queue", type=int, default=8192)
+    p.add_argument("--queue", type=int, default=1024)  # the ins's default
     args = p.parse_args(argv)
     run = ServiceRunner("ins", args)
     pub = run.bus.publisher(run.keys.nav_status())
