@@ -92,7 +92,12 @@ def edge_set(duration: float) -> dict:
     bus_args = ["--connect", ep]
     bus = Bus("bench", mode="peer", listen=[ep], connect=[])
     done = threading.Event()
-    bus.subscribe(bus.keys.nav_status(), lambda k, m, r: m["stream"].get("done") and done.set(), channel="ring")
+
+    def on_status(key, msg, recv_ns) -> None:
+        if msg["stream"].get("done"):
+            done.set()
+
+    bus.subscribe(bus.keys.nav_status(), on_status, channel="ring")
     watch = Watch(procs)
     try:
         procs.start([PY, "-m", "zennav.services.predictor", "--allow-unsigned", *bus_args], "predictor")
