@@ -1,22 +1,29 @@
 #!/usr/bin/env python
 """Transport benchmark (a script, not a test): separate processes over Zenoh on loopback.
 
-1. Throughput: the simulated drive (default 600 s of 200 Hz IMU = 120,000 samples) published by ingest as
-   fast as the consumer drains (reliable, blocking congestion control: zero loss is checked, not assumed):
-   - "ins":  ingest -> ins (the full navigation engine per sample, solutions published);
-   - "bus":  ingest -> a stand-in consumer that only receives, decodes and validates (transport ceiling).
-   Rate = IMU samples consumed / wall time between the consumer's first and last message.
-   With --batch N (default 10) also ingest -> ins with `zennav-ingest --batch N`: up to N consecutive IMU samples
-   per imu_batch message (the same samples, order and solutions; one zenoh message and one validation per batch).
-2. Latency: IMU paced at 200 Hz (real time); latency = wall clock at nav/solution receive (this process)
-   minus the IMU message's publish time (ingest), percentiles over every sample.
-Both peer-to-peer (peers on loopback, gossip) and through a router (`zennav router`, everyone a client).
-
-Every case runs --repeat times (fresh processes each time); the rate printed is the median, with the range; the
-latency percentiles are over the samples of all repetitions.
+1. Throughput: the simulated drive (default 600 s of 200 Hz IMU = 120,000 samples, GNSS withheld 20 s every
+   120 s) published by ingest as fast as the consumer drains (reliable, blocking congestion control: zero loss
+   is checked, not assumed). Consumers:
+   - "bus":   a stand-in that receives, decodes, validates and merges (zennav.stream.StreamFollower: cseq order,
+              imu_batch expanded, the time chain checked) and hands each sample to a no-op: the transport ceiling;
+   - "ins":   zennav-ins (the navigation engine per sample, one solution published per sample);
+   - "learn": zennav-ins --learning with zennav-trainer and zennav-predictor running (samples and queries
+              published, answers fused).
+   Each with one IMU sample per message and with ``zennav-ingest --batch N`` (--batch, default 50: up to N
+   consecutive samples per imu_batch message, the same samples, order and solutions).
+   Rate = IMU samples consumed / wall time between the consumer's first message and the stream's end.
+2. Latency: IMU paced at 200 Hz (real time), one sample per message; latency = wall clock at nav/solution
+   receive (this process) minus the IMU message's publish time (ingest), percentiles over every sample.
+3. Stage costs (in this process, no transport): microseconds per IMU sample of decode+validate, merge, the ins's
+   whole per-message path (engine included) and the solution message (build + encode), unbatched and batched:
+   where the time goes.
+Peer-to-peer (peers on loopback, gossip) by default; --router also through a router (`zennav router`, everyone
+a client). Every case runs --repeat times (fresh processes each time); the rate printed is the median, with
+the range; the latency percentiles are over the samples of all repetitions. The last lines set the medians
+beside issue 17's targets.
 
     .venv/bin/python benchmarks/bus_throughput.py [--duration 600] [--latency-duration 30] [--repeat 3]
-        [--batch 10] [--json out.json]
+        [--batch 50] [--router] [--no-learn] [--json out.json]
 """
 from __future__ import annotations
 
@@ -25,8 +32,10 @@ import json
 import os
 import signal
 import socket
+import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -36,6 +45,9 @@ import numpy as np
 
 PY = sys.executable
 BIN = Path(PY).parent
+OUTAGES = "120:20"  # --outage-every of every throughput case: the learning loop queries while GNSS is withheld
+TARGETS = {"bus": 50_000, "ins": 50_000, "learn": 20_000}  # [IMU/s] issue 17 (batched messages allowed)
+LATENCY_TARGET_MS = {"p50": 0.5, "p99": 2.0}
 
 
 def free_port() -> int:
@@ -45,62 +57,109 @@ def free_port() -> int:
 
 
 class Procs:
-    def __init__(self):
-        self.procs = []
+    """Service processes of one case; their stderr goes to files in a temporary folder (a pipe nobody reads
+    would block a talkative process). stop() reaps them with wait4 and returns each one's max RSS."""
 
-    def start(self, argv, name):
-        p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
-                             env=dict(os.environ, ZENNAV_LOG="WARNING"))
-        p.name = name
+    def __init__(self, env: dict | None = None):
+        self.procs: list[subprocess.Popen] = []
+        self.names: list[str] = []
+        self.dir = tempfile.TemporaryDirectory(prefix="zennav-bench-")
+        self.env = dict(os.environ, ZENNAV_LOG="WARNING", ZENNAV_STATE_DIR=self.dir.name, **(env or {}))
+
+    def start(self, argv: list[str], name: str) -> subprocess.Popen:
+        err = open(Path(self.dir.name) / f"{name}.log", "wb")
+        p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True, env=self.env)
+        err.close()
         self.procs.append(p)
+        self.names.append(name)
         return p
 
-    def stop(self):
+    def log_tail(self, name: str, n: int = 2000) -> str:
+        path = Path(self.dir.name) / f"{name}.log"
+        return path.read_text(errors="replace")[-n:] if path.exists() else ""
+
+    def stop(self) -> dict[str, int]:
+        """SIGTERM (SIGKILL after 10 s) every process, newest first; {name: max resident set size [bytes]}."""
+        rss = {}
         for p in reversed(self.procs):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for p in reversed(self.procs):
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
+            if p.returncode is None:
+                try:
+                    os.killpg(p.pid, signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+        for name, p in zip(reversed(self.names), reversed(self.procs)):
+            if p.returncode is not None:  # reaped by Popen already: its rusage is gone
+                continue
+            deadline = time.monotonic() + 10
+            while True:
+                pid, status, ru = os.wait4(p.pid, os.WNOHANG)
+                if pid or time.monotonic() > deadline:
+                    break
+                time.sleep(0.02)
+            if not pid:
                 p.kill()
-        self.procs = []
+                pid, status, ru = os.wait4(p.pid, 0)
+            p.returncode = os.waitstatus_to_exitcode(status)
+            rss[name] = ru.ru_maxrss * 1024
+        self.procs, self.names = [], []
+        self.dir.cleanup()
+        return rss
 
 
 def sink_main(argv) -> int:
-    """Stand-in consumer for the 'bus' measurement: receives, decodes, validates; acknowledges the end like
-    the ins does so ingest can exit."""
+    """Stand-in consumer for the 'bus' measurement: receives, decodes, validates and merges the stream as the ins
+    does (zennav.stream.StreamFollower), hands each sample to a no-op, and acknowledges the end like the ins so
+    that ingest can exit."""
     from zennav import messages as M
     from zennav.service import ServiceRunner, add_bus_args
+    from zennav.stream import StreamFollower
 
     p = add_bus_args(argparse.ArgumentParser())
+    p.add_argument("--queue", type=int, default=1024)  # the ins's default
     args = p.parse_args(argv)
     run = ServiceRunner("ins", args)
     pub = run.bus.publisher(run.keys.nav_status())
-    st: dict[str, Any] = {"n": 0, "imu": 0, "t0": None, "src": None, "cseqs": set()}
+    st: dict[str, Any] = {"imu": 0, "t0": None}
 
-    def on(key, msg, recv_ns):
-        if st["t0"] is None:
-            st["t0"] = time.perf_counter()
-        st["n"] += 1
+    def on_sample(key, msg) -> None:
         if msg["schema"] == "imu":
             st["imu"] += 1
-        elif msg["schema"] == "imu_batch":
-            st["imu"] += len(msg["t_ns_list"])
-        elif msg["schema"] == "stream_start":
-            st["src"] = msg["src"]
-        elif msg["schema"] == "stream_end":
-            wall = time.perf_counter() - st["t0"]
-            pub.put(M.make("nav_status", msg["t_ns"], gnss_state="valid", counters={}, rejected={},
-                           imu_count=st["imu"], gnss_count=0, model={},
-                           stream={"src": msg["src"], "done": True, "last_cseq": msg["last_cseq"], "wall_s": wall,
-                                   "expected_imu": msg["counts"]["imu"], "received": st["n"]}))
 
-    run.bus.subscribe(run.keys.sensors(), on, channel="fifo", capacity=8192)
+    def on_end(msg) -> None:
+        wall = time.perf_counter() - st["t0"]
+        pub.put(M.make("nav_status", msg["t_ns"], gnss_state="valid", counters={}, rejected={}, imu_count=st["imu"],
+                       gnss_count=0, model={}, stream={**follower.status(), "wall_s": wall}))
+
+    follower = StreamFollower(lambda start, join: None, on_sample, on_end, run.stream_start_of, run.log)
+
+    def on(key, msg, recv_ns) -> None:
+        if st["t0"] is None:
+            st["t0"] = time.perf_counter()
+        follower.on_message(key, msg)
+
+    run.bus.recovering_subscribe(run.keys.sensors(), on, channel="fifo", capacity=args.queue, name="sensors")
     return run.serve()
 
 
-def run_case(kind: str, via_router: bool, duration: float, speed: str, want_latency: bool, batch: int = 1) -> dict:
+def start_consumer(procs: Procs, kind: str, bus_args: list[str], bus, solution_every: int = 1) -> None:
+    """The consumer processes of a case, alive on the bus when this returns."""
+    wait = ["ins"]
+    if kind == "bus":
+        procs.start([PY, __file__, "--role", "sink", *bus_args], "sink")
+    elif kind == "ins":
+        procs.start([PY, "-m", "zennav.services.ins", "--solution-every", str(solution_every), *bus_args], "ins")
+    else:  # the learning loop: development signing (unsigned sets), the trainer on the CPU
+        procs.start([PY, "-m", "zennav.services.predictor", "--allow-unsigned", *bus_args], "predictor")
+        procs.start([PY, "-m", "zennav.services.trainer", "--unsigned", "--device", "cpu", "--torch-threads", "1",
+                     *bus_args], "trainer")
+        procs.start([PY, "-m", "zennav.services.ins", "--learning", *bus_args], "ins")
+        wait += ["predictor", "trainer"]
+    if not bus.wait_alive(wait, 120):
+        raise RuntimeError(f"{wait} did not come up: " + " | ".join(procs.log_tail(n, 500) for n in procs.names))
+
+
+def run_case(kind: str, via_router: bool, duration: float, speed: str, want_latency: bool, batch: int = 1,
+             solution_every: int = 1) -> dict:
     from zennav.bus import Bus
 
     procs = Procs()
@@ -113,8 +172,8 @@ def run_case(kind: str, via_router: bool, duration: float, speed: str, want_late
     else:
         bus_args = ["--connect", ep]
         bus = Bus("bench", mode="peer", listen=[ep], connect=[])
-    lat = []
-    status = {}
+    lat: list[int] = []
+    status: dict = {}
     done = threading.Event()
 
     def on_sol(key, msg, recv_ns):
@@ -129,20 +188,17 @@ def run_case(kind: str, via_router: bool, duration: float, speed: str, want_late
         bus.subscribe(bus.keys.nav_solution(), on_sol, channel="fifo", capacity=65536)
     bus.subscribe(bus.keys.nav_status(), on_status, channel="ring")
     try:
-        if kind == "ins":
-            procs.start([PY, "-m", "zennav.services.ins", *bus_args], "ins")
-        else:
-            procs.start([PY, __file__, "--role", "sink", *bus_args], "sink")
-        if not bus.wait_alive(["ins"], 60):
-            raise RuntimeError("consumer did not come up")
+        start_consumer(procs, kind, bus_args, bus, solution_every)
+        outage = [] if want_latency else ["--outage-every", OUTAGES]
         ing = procs.start([PY, "-m", "zennav.services.ingest", "sim:car", "-o", f"duration_s={duration}",
-                           "--speed", speed, "--batch", str(batch), *bus_args], "ingest")
-        if not done.wait(duration * 2 + 120):
-            raise RuntimeError("stream did not finish: " + ing.stderr.read().decode()[-2000:] if ing.poll() else "")
+                           "--speed", speed, "--batch", str(batch), *outage, *bus_args], "ingest")
+        if not done.wait(duration * 2 + 300):
+            raise RuntimeError("stream did not finish: " + procs.log_tail("ingest") + procs.log_tail("ins"))
         ing.wait(60)
         st = status["stream"]
         n = status["imu_count"]
-        out = {"consumer": kind, "via": "router" if via_router else "peer-to-peer", "batch": batch, "imu_samples": n,
+        out = {"consumer": kind, "via": "router" if via_router else "peer-to-peer", "batch": batch,
+               "solution_every": solution_every, "imu_samples": n,
                "expected": int(duration * 200), "wall_s": round(st["wall_s"], 3),
                "rate_per_s": round(n / st["wall_s"]), "lost": int(duration * 200) - n,
                "gap": st.get("gap", 0), "duplicate": st.get("duplicate", 0)}
@@ -151,14 +207,144 @@ def run_case(kind: str, via_router: bool, duration: float, speed: str, want_late
             while len(lat) < n and time.monotonic() < t_end:
                 time.sleep(0.05)
             ms = np.array(lat) / 1e6
-            out.update(solutions=len(ms), latency_ms_all=ms, latency_ms={"p50": round(float(np.percentile(ms, 50)), 3),
-                                                      "p90": round(float(np.percentile(ms, 90)), 3),
-                                                      "p99": round(float(np.percentile(ms, 99)), 3),
-                                                      "max": round(float(ms.max()), 3)})
+            out.update(solutions=len(ms), latency_ms_all=ms, latency_ms=percentiles(ms))
         return out
     finally:
         bus.close()
         procs.stop()
+
+
+def percentiles(ms: np.ndarray) -> dict:
+    out = {k: round(float(np.percentile(ms, q)), 3) for k, q in (("p50", 50), ("p90", 90), ("p99", 99))}
+    out["max"] = round(float(ms.max()), 3)
+    return out
+
+
+def stage_costs(duration: float, batch: int) -> dict:
+    """[us per IMU sample] of the ins's per-message path in this process (no transport), on the messages ingest
+    would publish (encoded): decode+validate (zennav.messages.Validator), merge (StreamFollower to a no-op), the ins
+    (InsNode.on_sensor: merge, engine, solution built; published to a no-op) and the solution message (build +
+    encode, zennav.messages.nav_solution_msg_of). Best of 3 passes each (the machine is shared)."""
+    import logging
+
+    from zennav import messages as M
+    from zennav.datasets.registry import load_dataset
+    from zennav.nodes.ins import InsNode
+    from zennav.replay import sensor_events
+    from zennav.stream import StreamFollower, stream_messages
+
+    ds = load_dataset("sim:car", duration_s=duration)
+    windows, events = sensor_events(ds, [], None)
+    keys = M.Keys("car")
+    key = {"stream": keys.stream(), "imu": keys.imu(), "gnss": keys.gnss()}
+    wire = []
+    for i, (kind, msg) in enumerate(stream_messages(ds, windows, events, batch)):
+        msg.update(src="ingest.bench", seq=i, pub_ns=time.time_ns())
+        wire.append((key[kind], M.encode(msg)))
+    n = len(ds.imu.t_ns)
+    log = logging.getLogger("bench")
+
+    def decoded() -> list:
+        v = M.Validator()
+        return [(k, v.check(k, p)[0]) for k, p in wire]
+
+    def best(setup, body) -> float:
+        times = []
+        for _ in range(3):
+            arg = setup()
+            t0 = time.perf_counter()
+            body(arg)
+            times.append(time.perf_counter() - t0)
+        return round(min(times) / n * 1e6, 2)
+
+    def merge(msgs) -> None:
+        f = StreamFollower(lambda start, join: None, lambda key, msg: None, lambda end: None)
+        for k, m in msgs:
+            f.on_message(k, m)
+
+    def ins(node_msgs) -> None:
+        node, msgs = node_msgs
+        for k, m in msgs:
+            node.on_sensor(k, m)
+
+    def solution(nav) -> None:
+        for i in range(n):
+            M.encode(M.nav_solution_msg_of(nav, i, 0))
+
+    def built_ins() -> tuple:
+        return InsNode(lambda kind, msg: None, log), decoded()
+
+    def navigated():
+        node, msgs = built_ins()
+        ins((node, msgs))
+        return node.nav
+
+    return {"batch": batch, "decode_validate": best(lambda: None, lambda _: decoded()),
+            "merge": best(decoded, merge), "ins": best(built_ins, ins), "solution_msg": best(navigated, solution)}
+
+
+def throughput(kinds: list[str], routes: list[bool], duration: float, batch: int, repeat: int,
+               solution_every: int) -> list[dict]:
+    """Every kind with one sample per message and with batch; the ins also publishing one solution in
+    solution_every (when > 1, batched)."""
+    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch})]
+    if "ins" in kinds and solution_every > 1:
+        cases.insert(cases.index(("ins", batch, 1)) + 1, ("ins", batch, solution_every))
+    results = []
+    for via_router in routes:
+        for kind, b, every in cases:
+            runs = [run_case(kind, via_router, duration, "0", want_latency=False, batch=b, solution_every=every)
+                    for _ in range(repeat)]
+            rates = sorted(r["rate_per_s"] for r in runs)
+            r = {"test": "throughput", **runs[0], "rate_per_s": int(statistics.median(rates)), "rates": rates,
+                 "lost": sum(x["lost"] for x in runs), "gap": sum(x["gap"] for x in runs),
+                 "duplicate": sum(x["duplicate"] for x in runs)}
+            del r["wall_s"], r["imu_samples"]
+            results.append(r)
+            sols = f" (1 solution in {every})" if every > 1 else ""
+            print(f"throughput {r['via']:<13} ingest -> {kind:<5} batch {b:>3}{sols}: median {r['rate_per_s']:>7} "
+                  f"IMU/s over {len(runs)} runs (range {rates[0]}-{rates[-1]}; {runs[0]['expected']} samples each, "
+                  f"lost {r['lost']}, gaps {r['gap']}, duplicates {r['duplicate']})", flush=True)
+    return results
+
+
+def latency(routes: list[bool], duration: float, repeat: int) -> list[dict]:
+    results = []
+    for via_router in routes:
+        runs = [run_case("ins", via_router, duration, "1", want_latency=True) for _ in range(repeat)]
+        ms = np.concatenate([x.pop("latency_ms_all") for x in runs])
+        lm = percentiles(ms)
+        r = {"test": "latency_200hz", "via": runs[0]["via"], "runs": len(runs), "solutions": int(ms.size),
+             "lost": sum(x["lost"] for x in runs), "latency_ms": lm,
+             "p50_per_run": [x["latency_ms"]["p50"] for x in runs],
+             "p99_per_run": [x["latency_ms"]["p99"] for x in runs]}
+        results.append(r)
+        print(f"latency    {r['via']:<13} IMU publish -> solution receive at 200 Hz: p50 {lm['p50']:.3f} ms, "
+              f"p90 {lm['p90']:.3f} ms, p99 {lm['p99']:.3f} ms, max {lm['max']:.3f} ms "
+              f"({r['solutions']} solutions over {len(runs)} runs, lost {r['lost']}; per run p50 "
+              f"{r['p50_per_run']}, p99 {r['p99_per_run']})", flush=True)
+    return results
+
+
+def summary(results: list[dict]) -> None:
+    """The medians beside issue 17's targets (peer-to-peer, the best batch size measured)."""
+    print("\nissue 17 targets (peer-to-peer; medians):")
+    for kind, target in TARGETS.items():
+        rows = [r for r in results if r["test"] == "throughput" and r["consumer"] == kind
+                and r["via"] == "peer-to-peer" and r["solution_every"] == 1]  # a solution per sample
+        if rows:
+            best = max(rows, key=lambda r: r["rate_per_s"])
+            clean = all(r["lost"] == r["gap"] == r["duplicate"] == 0 for r in rows)
+            side = ", ".join(f"batch {r['batch']}: {r['rate_per_s']}" for r in rows)
+            print(f"  {kind:<6} >= {target:>6} IMU/s: {best['rate_per_s']:>7} at batch {best['batch']} "
+                  f"({'met' if best['rate_per_s'] >= target else 'NOT met'}; {side}; "
+                  f"{'nothing' if clean else 'SAMPLES'} lost or duplicated)")
+    for r in results:
+        if r["test"] == "latency_200hz" and r["via"] == "peer-to-peer":
+            lm = r["latency_ms"]
+            print("  latency at 200 Hz, one sample per message: " + ", ".join(
+                f"{q} {lm[q]:.3f} ms (<= {t} ms: {'met' if lm[q] <= t else 'NOT met'})"
+                for q, t in LATENCY_TARGET_MS.items()))
 
 
 def main() -> int:
@@ -166,41 +352,33 @@ def main() -> int:
     ap.add_argument("--role", default="bench", choices=("bench", "sink"))
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds for throughput (200 Hz)")
     ap.add_argument("--latency-duration", type=float, default=30.0, help="real-time seconds for latency")
-    ap.add_argument("--batch", type=int, default=10,
-                    help="also measure ingest -> ins with IMU sent in imu_batch messages of this many samples (1: not)")
+    ap.add_argument("--batch", type=int, default=50,
+                    help="also every consumer with IMU sent in imu_batch messages of this many samples (1: not)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per case (median rate, pooled latency)")
+    ap.add_argument("--solution-every", type=int, default=10,
+                    help="also the ins (batched) publishing one solution in this many samples (1: not)")
+    ap.add_argument("--router", action="store_true", help="also every case through a router")
+    ap.add_argument("--no-learn", action="store_true", help="skip the learning-loop case")
+    ap.add_argument("--only", default=None, choices=("throughput", "latency", "stages"), help="run one part")
     ap.add_argument("--json", default=None, help="also write the results here")
     args, rest = ap.parse_known_args()
     if args.role == "sink":
         return sink_main(rest)
-    results = []
-    cases = [("bus", 1), ("ins", 1)] + ([("ins", args.batch)] if args.batch > 1 else [])
-    for via_router in (False, True):
-        for kind, batch in cases:
-            runs = [run_case(kind, via_router, args.duration, "0", want_latency=False, batch=batch)
-                    for _ in range(args.repeat)]
-            rates = sorted(r["rate_per_s"] for r in runs)
-            r = {"test": "throughput", **runs[0], "rate_per_s": int(np.median(rates)), "rates": rates,
-                 "lost": sum(x["lost"] for x in runs), "gap": sum(x["gap"] for x in runs),
-                 "duplicate": sum(x["duplicate"] for x in runs)}
-            del r["wall_s"], r["imu_samples"]
-            results.append(r)
-            what = kind if batch == 1 else f"{kind} (--batch {batch})"
-            print(f"throughput {r['via']:<13} ingest -> {what:<3}: median {r['rate_per_s']:>7} IMU/s over "
-                  f"{len(runs)} runs (range {rates[0]}-{rates[-1]}; {runs[0]['expected']} samples each, "
-                  f"lost {r['lost']}, gaps {r['gap']}, duplicates {r['duplicate']})", flush=True)
-    for via_router in (False, True):
-        runs = [run_case("ins", via_router, args.latency_duration, "1", want_latency=True) for _ in range(args.repeat)]
-        ms = np.concatenate([x.pop("latency_ms_all") for x in runs])
-        lm = {k: round(float(np.percentile(ms, q)), 3) for k, q in (("p50", 50), ("p90", 90), ("p99", 99))}
-        lm["max"] = round(float(ms.max()), 3)
-        r = {"test": "latency_200hz", "via": runs[0]["via"], "runs": len(runs), "solutions": int(ms.size),
-             "lost": sum(x["lost"] for x in runs), "latency_ms": lm,
-             "p50_per_run": [x["latency_ms"]["p50"] for x in runs]}
-        results.append(r)
-        print(f"latency    {r['via']:<13} IMU publish -> solution receive at 200 Hz: p50 {lm['p50']:.3f} ms, "
-              f"p90 {lm['p90']:.3f} ms, p99 {lm['p99']:.3f} ms, max {lm['max']:.3f} ms "
-              f"({r['solutions']} solutions over {len(runs)} runs, lost {r['lost']})", flush=True)
+    results: list[dict] = []
+    routes = [False, True] if args.router else [False]
+    if args.only in (None, "stages"):
+        for b in sorted({1, args.batch}):
+            c = stage_costs(min(args.duration, 120.0), b)
+            results.append({"test": "stages_us_per_sample", **c})
+            print(f"stages (us per IMU sample, in-process, batch {b:>3}): decode+validate {c['decode_validate']}, "
+                  f"merge {c['merge']}, ins whole path {c['ins']} (engine included), solution build+encode "
+                  f"{c['solution_msg']}", flush=True)
+    if args.only in (None, "throughput"):
+        kinds = ["bus", "ins"] + ([] if args.no_learn else ["learn"])
+        results += throughput(kinds, routes, args.duration, args.batch, args.repeat, args.solution_every)
+    if args.only in (None, "latency"):
+        results += latency(routes, args.latency_duration, args.repeat)
+    summary(results)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0

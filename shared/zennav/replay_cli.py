@@ -50,7 +50,6 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     from .datasets.errors import DataError
     from .datasets.odometer import load_kfgins_odometer
     from .datasets.registry import load_dataset
-    from .learn.loop import make_compensator
     from .metrics import evaluate, format_table, write_outputs, write_solution
     from .params import ParamError, nav_config
     from .progress import Progress
@@ -82,8 +81,12 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         recorder.on_epoch(nav)
         progress.on_epoch(nav)
 
-    res = run_replay(ds, outages=list(outages), outage_every=every,
-                     compensator=make_compensator(compensation, target, seed), on_epoch=on_epoch,
+    compensator = None
+    if compensation != "none":  # the learning loop (its modules) only when asked for: start-up time
+        from .learn.loop import make_compensator
+
+        compensator = make_compensator(compensation, target, seed)
+    res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
                      smoothing=smooth)
     progress.close()
     recorder.finish(ds, sensor_events(ds, list(outages), every)[1] if mcap is not None else [], res.reports)

@@ -43,7 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="use a velocity-derived acceleration while at most this old (sample time) [s]")
     p.add_argument("--accel-min-span", type=float, default=0.1,
                    help="difference velocity samples at least this far apart [s]")
-    p.add_argument("--queue", type=int, default=8192, help="sensor queue capacity (back-pressure beyond)")
+    p.add_argument("--queue", type=int, default=1024,
+                   help="sensor queue capacity in messages (back-pressure beyond; every queued message holds zenoh's "
+                        "receive buffer: 8192 cost about 100 MB of resident memory, benchmarks/memory.py)")
     p.add_argument("--takeover-after", type=float, default=10.0,
                    help="[s] another source's stream_start replaces the live stream only after this long without a "
                         "message of it (inf: only after its end)")

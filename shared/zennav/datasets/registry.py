@@ -53,17 +53,23 @@ def data_root() -> Path:
 
 
 def _load_folder(folder: Path, **options) -> Dataset:
-    """A dataset folder, recognized by its files."""
-    from zennav.datasets import ansfl, comma2k19, kfgins, rtklibexplorer
-
+    """A dataset folder, recognized by its files (only the recognised loader is imported: start-up time)."""
     if (folder / "global_pose").is_dir() and (folder / "processed_log").is_dir():
+        from zennav.datasets import comma2k19
+
         return comma2k19.load(folder, **options)
     if (folder / "GT.csv").is_file() and (folder / "IMU_1.csv.gz").is_file():
+        from zennav.datasets import ansfl
+
         return ansfl.load(folder, **options)
     if any(folder.glob("imu_*.csv.tag")) and any(folder.glob("*.pos")):
+        from zennav.datasets import rtklibexplorer
+
         return rtklibexplorer.load(folder, **options)
     configs = sorted(folder.glob("*.yaml")) + sorted(folder.glob("*.yml"))
     if len(configs) == 1:
+        from zennav.datasets import kfgins
+
         return kfgins.load_config(configs[0], **options)
     raise DataError(folder, f"not a known dataset folder (comma2k19, rtklibexplorer, an ANSFL flight, or one "
                             f"KF-GINS YAML); "
@@ -90,8 +96,6 @@ def parse_loader_options(items) -> dict:
 
 def load_dataset(spec: str, **options) -> Dataset:
     """Load a dataset from ``spec``: one of ACCEPTED. ``options`` go to the loader (e.g. prefilter="none")."""
-    from zennav.datasets import kfgins
-
     if spec in RECORDINGS:
         return _load_folder(data_root() / RECORDINGS[spec], **options)
     if spec.startswith("ansfl:"):
@@ -113,6 +117,8 @@ def load_dataset(spec: str, **options) -> Dataset:
         return make_dataset(kind, **options)
     path = Path(spec)
     if path.suffix.lower() in (".yaml", ".yml"):
+        from zennav.datasets import kfgins
+
         return kfgins.load_config(path, **options)
     if path.is_dir():
         return _load_folder(path, **options)

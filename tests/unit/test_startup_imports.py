@@ -1,0 +1,31 @@
+"""Start-up: a command imports only what it uses (benchmarks/startup.py measures the time). A fresh interpreter is
+used for each check: this test process has imported everything already."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+
+def _modules_after(code: str, names: tuple[str, ...]) -> list[str]:
+    probe = code + f"\nimport sys\nprint(sorted(m for m in {names!r} if m in sys.modules))"
+    return eval(subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout)
+
+
+def test_a_dataset_folder_imports_only_its_own_loader():
+    """rtklibexplorer's folder: its loader only, not ANSFL's, comma2k19's or KF-GINS's (ANSFL's loads scipy.signal
+    for every folder otherwise)."""
+    names = ("zennav.datasets.rtklibexplorer", "zennav.datasets.ansfl", "zennav.datasets.comma2k19",
+             "zennav.datasets.kfgins")
+    got = _modules_after("from zennav.datasets.registry import load_dataset\nload_dataset('rtklibexplorer')", names)
+    assert got == ["zennav.datasets.rtklibexplorer"]
+
+
+def test_a_plain_replay_does_not_import_the_learning_loop():
+    """`zennav replay` without --compensation: no learning loop, no torch, no plotting, no MCAP writer."""
+    names = ("zennav.learn.loop", "torch", "matplotlib", "mcap")
+    code = ("from click.testing import CliRunner\nfrom zennav.cli import main\n"
+            "r = CliRunner().invoke(main, ['replay', 'sim:static', '-o', 'duration_s=2', '-q'])\n"
+            "assert r.exit_code == 0, r.output")
+    assert _modules_after(code, names) == []
+    with_loop = code.replace("'-q']", "'-q', '--compensation', 'anfis']")
+    assert _modules_after(with_loop, names)[:1] == ["zennav.learn.loop"]  # the check sees it when it is used
