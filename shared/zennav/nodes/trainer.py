@@ -1,7 +1,8 @@
-"""The trainer service's core, transport-free: one zennav.learn.learner.Learner per target variant fed with the
-ins's learn_sample messages and the sample counts of its learn_query messages; the fits run on the caller's
-training thread and each set goes to ``publish(name, model_params message)`` (see zennav.services.trainer for the
-wiring, ARCHITECTURE.md section 3 for the loop).
+"""The trainer service's core: one zennav.learn.learner.Learner per target variant fed with the ins's
+learn_sample messages and the sample counts of its learn_query messages (TrainerNode, transport-free); the fits
+run on the training thread (``train_loop``) and each set goes to ``publish(name, model_params message)``, the
+bus's model publishers (ModelPublishers, which also re-publish the latest sets when a lost link to the router
+comes back); see zennav.services.trainer for the wiring, ARCHITECTURE.md section 3 for the loop.
 
 Versions survive a restart: with a state directory, the last version of each model name is written there (atomically,
 before the set is published) and a restarted trainer continues above it; the trainer also continues above a set it
@@ -144,6 +145,10 @@ class TrainerNode:
         return msg
 
     # ------------------------------------------------------------------ status
+    def received(self) -> int:
+        """Samples received, all targets."""
+        return sum(lr.received for lr in self.learners.values())
+
     def counters(self) -> dict:
         c = dict(self.counts)
         for t, lr in self.learners.items():
@@ -155,3 +160,59 @@ class TrainerNode:
         s = "; ".join(f"{lr.name} v{lr.last['version']} (through {lr.last['samples_seen']} samples, 1-sigma "
                       f"{lr.last['sigma']})" for lr in self.learners.values() if lr.last) or "no set published yet"
         return f"{s}; {self.settings.label}, device {self.device or 'cpu'}" + (f"; {self.busy}" if self.busy else "")
+
+
+class ModelPublishers:
+    """The trainer's publishers on <base>/learn/model/<name>, one per model name, made on first use. ``watch``
+    follows the link to the router (a client's session reconnects by itself) and re-publishes the latest set of
+    each model when it comes back, so a set trained during a cut is not lost."""
+
+    def __init__(self, bus, log) -> None:
+        self.bus, self.log = bus, log
+        self.pubs: dict = {}
+        self.lock = threading.Lock()
+        self.up = self.connected()
+        self.losses = self.republished = 0
+
+    def publish(self, name: str, msg: dict) -> None:
+        with self.lock:
+            p = self.pubs.get(name)
+            if p is None:
+                p = self.pubs[name] = self.bus.publisher(self.bus.keys.learn_model(name))
+            p.put(msg)
+
+    def connected(self) -> bool:
+        return bool(self.bus.routers() or self.bus.peers())
+
+    def watch(self, run, poll_s: float, held) -> None:
+        """Until the service stops: check the link every poll_s [s]; held() is the number of samples received."""
+        while not run.wait(poll_s):
+            up = self.connected()
+            if up == self.up:
+                continue
+            self.up = up
+            if not up:
+                self.losses += 1
+                self.log.warning("link to the router lost; training goes on with the %s samples received", held())
+                continue
+            with self.lock:
+                for p in self.pubs.values():
+                    if p.latest is not None:
+                        p.put_raw(p.latest)
+                        self.republished += 1
+            self.log.info("link to the router restored; latest sets re-published (%s)",
+                          ", ".join(self.pubs) or "none yet")
+
+    def counters(self) -> dict:
+        return {"link_losses": self.losses, "republished": self.republished}
+
+
+def train_loop(run, node: TrainerNode) -> None:
+    """The training thread: fit and publish every due point until the service stops; each fit is a heartbeat (a
+    lockstep predictor waits on the trainer's progress, zennav.services.predictor)."""
+    while not run.stopping:
+        for t in node.wait_due():
+            if run.stopping:
+                break
+            node.train(t)
+            run.heartbeat()
