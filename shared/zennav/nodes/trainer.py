@@ -7,7 +7,12 @@ comes back); see zennav.services.trainer for the wiring, ARCHITECTURE.md section
 Versions survive a restart: with a state directory, the last version of each model name is written there (atomically,
 before the set is published) and a restarted trainer continues above it; the trainer also continues above a set it
 finds on the bus (zennav.services.trainer). The held samples are not persisted: a restarted trainer learns again
-from the samples that arrive (its first set after min_samples of them)."""
+from the samples that arrive (its first set after min_samples of them).
+
+Samples sent twice: an ins resumed from its checkpoint publishes again the samples it had published since (same
+stream, same times, same indices). Per variant and stream, a sample that is not after the last one accepted (an
+earlier time, or the same time and an index not above its index) is dropped and counted (duplicate_samples): the
+learner holds each sample once, as in a run without the crash."""
 from __future__ import annotations
 
 import json
@@ -72,6 +77,7 @@ class TrainerNode:
         self.version = {t: max(int(first_version) - 1, kept.get(self.names[t], 0)) for t in self.targets}
         self.counts: Counter[str] = Counter()
         self.busy = ""
+        self._last: dict[tuple, tuple] = {}  # (variant, stream) -> (t_ns, index) of the last sample accepted
 
     # ------------------------------------------------------------------ input
     def on_sample(self, msg: dict) -> None:
@@ -82,9 +88,26 @@ class TrainerNode:
         if len(msg["features"]) != len(FEATURES[t]) or len(msg["target"]) != len(OUTPUTS[t]):
             self.counts["ignored_shape"] += 1
             return
+        if self._sent_again(t, msg):
+            self.counts["duplicate_samples"] += 1
+            n = self.counts["duplicate_samples"]
+            if n <= 3 or n % 1000 == 0:
+                self.log.warning("%s sample at t=%d ns from %s sent again: dropped (#%d duplicate_samples)", t,
+                                 msg["t_ns"], msg.get("src"), n)
+            return
         self.learners[t].add(msg["t_ns"], msg["features"], msg["target"])
         with self.cv:
             self.cv.notify()
+
+    def _sent_again(self, target: str, msg: dict) -> bool:
+        """Whether msg repeats a sample of target already accepted (module docstring); else it is the last."""
+        key, this = (target, msg.get("stream")), (msg["t_ns"], msg.get("index"))
+        last = self._last.get(key)
+        if last is not None and (this[0] < last[0] or (this[0] == last[0] and this[1] is not None
+                                                       and last[1] is not None and this[1] <= last[1])):
+            return True
+        self._last[key] = this
+        return False
 
     def on_query(self, msg: dict) -> None:
         """A learn_query: its n_samples asks for a set through exactly that many samples of its variant."""
