@@ -1,7 +1,8 @@
 """Fault tolerance of the sensor stream with real processes over Zenoh (issue 19): a hijacking stream_start and
 samples built to stall the merge are refused with counted reasons and cost nothing; a message lost in transit
 costs a counted gap and the stream still ends; an ins killed with SIGKILL mid-stream and restarted resumes from
-its checkpoint and the samples the ingest kept for it, and navigates every sample as the replay does."""
+its checkpoint and the samples the ingest kept for it, and navigates every sample as the replay does; a killed
+attitude service rejoins the stream in flight."""
 from __future__ import annotations
 
 import signal
@@ -198,3 +199,41 @@ def test_router_killed_and_restarted_a_client_recovers_the_solutions(cluster):
         assert len(got) == 12_000 and not client.missed  # the ins's cache (--recovery-cache) outlasts the outage
     finally:
         client.close()
+
+
+def test_attitude_killed_mid_stream_rejoins_the_live_stream(cluster):
+    """kill -9 of the attitude service 20 s into a 60 s stream paced at twice real time, restarted at once: it
+    re-initialises from the stream in flight (a late join, counted) and publishes again within seconds, an attitude
+    for every IMU sample from its join to the stream's end; what is lost is the dead window only."""
+    k = cluster.keys
+    att = Collector(cluster.bus, k.attitude())
+    status = Collector(cluster.bus, k.svc_status("attitude"), channel="ring")
+    imu = Collector(cluster.bus, k.imu())
+    args = ("--velocity-source", "none", "--status-period", "0.5")
+    first = cluster.service("attitude", *args)
+    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=60", "--speed", "2", "--wait-for", "attitude",
+                          wait=False)
+    att.wait(lambda c: len(c.msgs()) >= 4000, 60, "20 s of attitudes")
+    first.p.send_signal(signal.SIGKILL)
+    first.p.wait(5)
+    t_kill = time.monotonic()
+    src0 = att.msgs()[0]["src"]
+    cluster.wait_alive(["attitude"], 15, alive=False)
+    cluster.service("attitude", *args)
+    att.wait(lambda c: any(m["src"] != src0 for m in c.msgs()), 30, "an attitude from the restarted service")
+    back_s = time.monotonic() - t_kill
+    assert ing.wait(90) == 0, ing.text()[-3000:]
+    st = status.wait(lambda c: next((m for m in reversed(c.msgs()) if m["src"] != src0 and m["counters"].get("done")),
+                                    None), 60, "the restarted service's end of stream")["counters"]
+    t_imu = [m["t_ns"] for m in imu.msgs()]
+    att.wait(lambda c: sum(m["src"] != src0 for m in c.msgs()) >= st["published"], 30, "every attitude")
+    before = {m["t_ns"] for m in att.msgs() if m["src"] == src0}
+    after = [m["t_ns"] for m in att.msgs() if m["src"] != src0]
+    lost = len(set(t_imu) - before - set(after))
+    print(f"\nattitude killed after {len(before)} attitudes; the restarted one published again {back_s:.1f} s after "
+          f"the kill (late_join {st['late_join']}): {len(after)} attitudes, from "
+          f"{(after[0] - t_imu[0]) / 1e9:.1f} s of data to the end; {lost} IMU samples without an attitude (the dead "
+          "window)")
+    assert len(t_imu) == 12_000 and back_s < 20.0 and st["late_join"] == 1
+    assert st["published"] == st["imu"] == len(after) and after == t_imu[t_imu.index(after[0]):]
+    assert lost == t_imu.index(after[0]) - len(before) and lost < 400 * back_s  # 400 samples/s at twice real time

@@ -75,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gnss-silence", type=float, default=2.0, help="[s] receiver silence that is counted and logged")
     p.add_argument("--cache", type=int, default=20000,
                    help="sensor messages kept per key for consumers that recover what they missed (a restarted "
-                        "ins or attitude service fetches them; zenoh's advanced publisher); 0: plain publishers")
+                        "ins fetches them; zenoh's advanced publisher); 0: plain publishers")
     p.add_argument("--max-lead", type=int, default=10000,
                    help="with --speed 0: stay at most this many messages ahead of the slowest ins following the "
                         "stream (its nav status), so that what a crashed ins had queued is still in the --cache; "
