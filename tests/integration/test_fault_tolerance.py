@@ -238,3 +238,60 @@ def test_attitude_killed_mid_stream_rejoins_the_live_stream(cluster):
     assert len(t_imu) == 12_000 and back_s < 20.0 and st["late_join"] == 1
     assert st["published"] == st["imu"] == len(after) and after == t_imu[t_imu.index(after[0]):]
     assert lost == t_imu.index(after[0]) - len(before) and lost < 400 * back_s  # 400 samples/s at twice real time
+
+
+def test_lockstep_learning_ins_killed_and_resumed_equals_the_in_process_loop(cluster, tmp_path):
+    """ins --learning --lockstep with a checkpoint, trainer, predictor --lockstep; kill -9 of the ins 80 s into a
+    150 s drive (GNSS outage at 100 s), restarted from its checkpoint: it publishes again the learn samples it had
+    sent since the checkpoint, the trainer drops them (counted duplicate_samples), fits at the in-process loop's
+    points, and the solution (each sample time once) is the in-process loop's, bit for bit where no answer was fused
+    (as in test_learning_services' lockstep test)."""
+    from test_learning_services import wait_counter
+
+    from zennav.datasets.registry import load_dataset
+    from zennav.learn.loop import InProcessLoop
+    from zennav.learn.settings import LearnSettings
+    from zennav.replay import run_replay
+
+    k = cluster.keys
+    sols = Collector(cluster.bus, k.nav_solution())
+    status = Collector(cluster.bus, k.nav_status(), channel="ring")
+    models = Collector(cluster.bus, k.learn_model())
+    svc = Collector(cluster.bus, k.svc_status(), channel="ring", capacity=64)
+    settings = LearnSettings(min_samples=60, n_rules=4, max_epochs=5)
+    cluster.service("predictor", "--lockstep", "--status-period", "0.2")
+    cluster.service("trainer", "--min-samples", "60", "--n-rules", "4", "--max-epochs", "5", "--torch-threads", "1",
+                    "--device", "cpu", "--status-period", "0.2")
+    args = ("--learning", "--lockstep", "--checkpoint", tmp_path / "ins.ckpt", "--checkpoint-every", "5")
+    ins = cluster.service("ins", *args)
+    duration, outage = 150.0, (100.0, 20.0)
+    ing = cluster.service("ingest", "sim:car", "-o", f"duration_s={duration:g}", "--speed", "0",
+                          "--outage", f"{outage[0]:g}:{outage[1]:g}", wait=False)
+    loop = InProcessLoop("body_velocity", settings)
+    ref = run_replay(load_dataset("sim:car", duration_s=duration), outages=[outage], compensator=loop)
+    status.wait(lambda c: any(m["t_ns"] - c.msgs()[0]["t_ns"] > 80e9 for m in c.msgs()), 240, "80 s of the stream")
+    ins.p.send_signal(signal.SIGKILL)
+    ins.p.wait(5)
+    cluster.wait_alive(["ins"], 15, alive=False)
+    cluster.service("ins", *args)
+    st = status.wait(lambda c: next((m for m in c.msgs() if m["stream"].get("done")), None), 240,
+                     "the resumed ins to finish the stream")
+    assert ing.wait(60) == 0, ing.text()[-3000:]
+    assert st["stream"]["resumed"] == 1 and st["model"].get("lockstep_timeouts", 0) == 0, st
+    n = len(ref.t_ns)
+    sols.wait(lambda c: len({m["t_ns"] for m in c.msgs()}) >= n, 60, "every solution")
+    by_t = {m["t_ns"]: m for m in sols.msgs()}  # a sample navigated twice (before the kill, after the checkpoint)
+    assert np.array_equal(sorted(by_t), ref.t_ns)
+    learned = [r for r in ref.reports if r.source == "learned_body_velocity"]
+    fused_at = np.isin(ref.t_ns, [r.t_ns for r in learned if r.fused])
+    for field, want in (("llh", ref.llh), ("v_n", ref.v_n), ("q_nb", ref.q_nb)):
+        got = np.array([by_t[t][field] for t in ref.t_ns])
+        same = np.all(got == want, axis=1)
+        assert np.array_equal(same | fused_at, np.ones(n, dtype=bool)), f"{field} differs from the in-process loop"
+    tc = wait_counter(svc, "trainer", lambda c: c.get("duplicate_samples", 0) > 0, 20, "the trainer's count")
+    sets = models.wait(lambda c: c.msgs() if len(c.msgs()) >= loop.version else None, 20, "the trainer's sets")
+    assert [m["metrics"]["samples_seen"] for m in sets] == [60, loop.core.live["body_velocity"].samples_seen]
+    c = tc["counters"]
+    print(f"\nins killed at 80 s and resumed: {n} solutions equal the in-process loop's; trainer dropped "
+          f"{c['duplicate_samples']} samples sent again, received {c['received_body_velocity']}; sets through "
+          f"{[m['metrics']['samples_seen'] for m in sets]}")
