@@ -31,6 +31,8 @@ from pathlib import Path
 import yaml
 
 from zennav.certs import make_certs
+from zennav.learn.signing import PRIVATE_NAME, PUBLIC_NAME
+from zennav.learn.signing import generate as generate_keys
 from zennav.recording import read_mcap
 
 PY = sys.executable
@@ -44,7 +46,14 @@ def _free_port() -> int:
 
 
 def _set_file(out: Path, name: str, drive_s: float) -> Path:
-    """deploy/demo.yaml with the drive's length, a free port and the recording under out/."""
+    """deploy/demo.yaml with the drive's length, a free port, the recording under out/ and, as `zennav demo` gives
+    them, a parameter-set signing pair (out/keys/: the trainer signs, the predictor verifies) and the trainer's
+    version state (out/<name>-state/)."""
+    keys = out / "keys"
+    if not (keys / PRIVATE_NAME).exists():
+        generate_keys(keys)
+    env = {"trainer": {"ZENNAV_SIGNING_KEY": str(keys / PRIVATE_NAME), "ZENNAV_STATE_DIR": str(out / f"{name}-state")},
+           "predictor": {"ZENNAV_VERIFY_KEY": str(keys / PUBLIC_NAME)}}
     spec = yaml.safe_load((ROOT / "deploy" / "demo.yaml").read_text())
     spec["rendezvous"] = f"tcp/127.0.0.1:{_free_port()}"
     spec["up_timeout_s"] = 180
@@ -55,6 +64,8 @@ def _set_file(out: Path, name: str, drive_s: float) -> Path:
             cmd += ["--wait-timeout", "180"]
         if s["name"] == "record":
             cmd[-1] = str(out / f"{name}.mcap")
+        if s["name"] in env:
+            s["env"] = {**s.get("env", {}), **env[s["name"]]}
     path = out / f"{name}.yaml"
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
     return path
