@@ -97,18 +97,17 @@ def secure(tmp_path_factory):
     s.close()
 
 
-@pytest.mark.parametrize("identity", sorted(OWNS))
-def test_only_the_owner_of_a_key_can_put_on_it(secure, identity):
-    """Each identity puts on every sensor, navigation, model and learned-answer key: the authorised subscriber
-    gets exactly the keys the identity owns (all COUNT samples) and nothing of the others."""
-    res = secure.put(identity)
-    assert res["opened"], res
-    want = {name: COUNT if name in OWNS[identity] else 0 for name in KEYS}
-    if OWNS[identity]:
-        wait_until(lambda: all(secure.received(identity)[n] >= COUNT for n in OWNS[identity]), 20,
-                   f"{identity}'s authorised samples")
+def test_only_the_owner_of_a_key_can_put_on_it(secure):
+    """Each identity (all at once, one client each) puts on every sensor, navigation, model and learned-answer
+    key: the authorised subscriber gets exactly the keys the identity owns (all COUNT samples) and nothing of the
+    others."""
+    for identity, res in secure.put_all({i: (i, (), None) for i in sorted(OWNS)}).items():
+        assert res["opened"], (identity, res)
+    wait_until(lambda: all(secure.received(i)[n] >= COUNT for i, names in OWNS.items() for n in names), 20,
+               "every owner's authorised samples")
     time.sleep(1.0)  # anything denied would have arrived by now
-    assert secure.received(identity) == want
+    for identity, names in OWNS.items():
+        assert secure.received(identity) == {name: COUNT if name in names else 0 for name in KEYS}, identity
 
 
 def test_credentials_of_two_identities_do_not_combine(secure):
