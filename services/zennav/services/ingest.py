@@ -160,10 +160,10 @@ def _run(run, args, speed: float, acks: EndAcks, p_stream, p_imu, p_gnss, stats:
         run.set_state("running", f"streaming {ds.name}")
         hold = None
         if speed == 0 and waits:
-            progress = Progress(run.bus, args.rejoin_timeout)
+            progress, given_up = Progress(run.bus, args.rejoin_timeout), set[str]()  # still down after the timeout
 
             def hold(cseq: int) -> None:
-                hold_while_down(run, waits, args.rejoin_timeout, stats)
+                hold_while_down(run, waits, args.rejoin_timeout, stats, given_up)
                 if args.max_lead > 0:
                     progress.wait_within(cseq, args.max_lead, run)
         msgs = (stream_messages(ds, windows, events, args.batch) if receiver is None else
