@@ -295,3 +295,22 @@ def test_lockstep_learning_ins_killed_and_resumed_equals_the_in_process_loop(clu
     print(f"\nins killed at 80 s and resumed: {n} solutions equal the in-process loop's; trainer dropped "
           f"{c['duplicate_samples']} samples sent again, received {c['received_body_velocity']}; sets through "
           f"{[m['metrics']['samples_seen'] for m in sets]}")
+
+
+def test_ingest_streams_on_without_a_service_that_stays_down(cluster):
+    """An as-fast-as-drained ingest that awaits the ins and the attitude service: the attitude service is killed
+    for good mid-stream. The ingest pauses once, --rejoin-timeout seconds, then streams on without it (not one
+    pause per message) and the ins still gets the whole stream."""
+    status = Collector(cluster.bus, cluster.keys.nav_status(), channel="ring")
+    cluster.service("ins")
+    att = cluster.service("attitude")
+    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=30", "--speed", "0", "--wait-for", "ins,attitude",
+                          "--rejoin-timeout", "2", wait=False)
+    status.wait(lambda c: any(m["imu_count"] > 1000 for m in c.msgs()), 60, "the stream under way")
+    att.kill()
+    assert ing.wait(90) == 0, ing.text()[-3000:]
+    st = status.wait(lambda c: next((m for m in c.msgs() if m["stream"].get("done")), None), 30, "the ins's end")
+    text = ing.text()
+    print(f"\ningest: {text.count('pausing the stream')} pause(s), "
+          f"{text.count('streaming on without')} time(s) streamed on without the dead service")
+    assert text.count("streaming on without ['attitude']") == 1 and st["imu_count"] == 6000, text[-3000:]
