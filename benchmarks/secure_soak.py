@@ -5,11 +5,12 @@ configuration (peers on loopback), then in the secure one (`zennav launch ... --
 client of the router over mutual TLS with user/password and the router's access control), in the same run.
 
 Each variant is `zennav launch <set> --until record` (what the product runs); the figures come from the
-recorder's MCAP (zennav.recording.read_mcap), whose log time is the recorder's receive time:
+recorder's MCAP (zennav.recording.read_mcap; its log time is the sample time, so the clock here is each message's
+pub_ns, the publisher's wall clock):
 - IMU published: the ingest's stream_end counts; per ins (nav/, nav/plain/): solutions recorded, duplicate
   solutions (a sample time twice), lost = IMU published - distinct solutions, and the ins's own merger counts
   (gap, duplicate) from its last nav/status;
-- throughput: IMU samples / (last solution - stream_start), recorder clock [samples/s].
+- throughput: IMU samples / (last solution published - stream_start published), wall clock [samples/s].
 
     .venv/bin/python benchmarks/secure_soak.py [--drive-s 3000] [--out out/secure_soak] [--variants plain,secure]
 
@@ -77,15 +78,15 @@ def _figures(mcap: Path) -> dict:
     sol_t: dict[str, Counter] = {}
     sol_last: dict[str, int] = {}
     status: dict[str, dict] = {}
-    for key, msg, _payload, log_ns in read_mcap(mcap, [r"/sensor/stream$", r"/nav/(.+/)?(solution|status)$"]):
+    for key, msg, _payload, _log_ns in read_mcap(mcap, [r"/sensor/stream$", r"/nav/(.+/)?(solution|status)$"]):
         rel = key.split("/", 3)[3]
         if rel == "sensor/stream" and msg and msg.get("schema") == "stream_start":
-            t_start = log_ns  # published just before the first IMU sample
+            t_start = msg["pub_ns"]  # published just before the first IMU sample
         elif rel == "sensor/stream" and msg and msg.get("schema") == "stream_end":
             end = msg
         elif rel.startswith("nav/") and rel.endswith("/solution") or rel == "nav/solution":
             sol_t.setdefault(rel, Counter())[msg["t_ns"]] += 1
-            sol_last[rel] = log_ns
+            sol_last[rel] = max(sol_last.get(rel, 0), msg["pub_ns"])
         elif rel.startswith("nav/") and rel.endswith("status") and msg:
             status[rel] = msg.get("stream", {})
     imu = int(end.get("counts", {}).get("imu", -1))
