@@ -5,11 +5,12 @@ configuration (peers on loopback), then in the secure one (`zennav launch ... --
 client of the router over mutual TLS with user/password and the router's access control), in the same run.
 
 Each variant is `zennav launch <set> --until record` (what the product runs); the figures come from the
-recorder's MCAP (zennav.recording.read_mcap), whose log time is the recorder's receive time:
+recorder's MCAP (zennav.recording.read_mcap; its log time is the sample time, so the clock here is each message's
+pub_ns, the publisher's wall clock):
 - IMU published: the ingest's stream_end counts; per ins (nav/, nav/plain/): solutions recorded, duplicate
   solutions (a sample time twice), lost = IMU published - distinct solutions, and the ins's own merger counts
   (gap, duplicate) from its last nav/status;
-- throughput: IMU samples / (last solution - stream_start), recorder clock [samples/s].
+- throughput: IMU samples / (last solution published - stream_start published), wall clock [samples/s].
 
     .venv/bin/python benchmarks/secure_soak.py [--drive-s 3000] [--out out/secure_soak] [--variants plain,secure]
 
@@ -31,6 +32,8 @@ from pathlib import Path
 import yaml
 
 from zennav.certs import make_certs
+from zennav.learn.signing import PRIVATE_NAME, PUBLIC_NAME
+from zennav.learn.signing import generate as generate_keys
 from zennav.recording import read_mcap
 
 PY = sys.executable
@@ -44,7 +47,14 @@ def _free_port() -> int:
 
 
 def _set_file(out: Path, name: str, drive_s: float) -> Path:
-    """deploy/demo.yaml with the drive's length, a free port and the recording under out/."""
+    """deploy/demo.yaml with the drive's length, a free port, the recording under out/ and, as `zennav demo` gives
+    them, a parameter-set signing pair (out/keys/: the trainer signs, the predictor verifies) and the trainer's
+    version state (out/<name>-state/)."""
+    keys = out / "keys"
+    if not (keys / PRIVATE_NAME).exists():
+        generate_keys(keys)
+    env = {"trainer": {"ZENNAV_SIGNING_KEY": str(keys / PRIVATE_NAME), "ZENNAV_STATE_DIR": str(out / f"{name}-state")},
+           "predictor": {"ZENNAV_VERIFY_KEY": str(keys / PUBLIC_NAME)}}
     spec = yaml.safe_load((ROOT / "deploy" / "demo.yaml").read_text())
     spec["rendezvous"] = f"tcp/127.0.0.1:{_free_port()}"
     spec["up_timeout_s"] = 180
@@ -55,6 +65,8 @@ def _set_file(out: Path, name: str, drive_s: float) -> Path:
             cmd += ["--wait-timeout", "180"]
         if s["name"] == "record":
             cmd[-1] = str(out / f"{name}.mcap")
+        if s["name"] in env:
+            s["env"] = {**s.get("env", {}), **env[s["name"]]}
     path = out / f"{name}.yaml"
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
     return path
@@ -66,15 +78,15 @@ def _figures(mcap: Path) -> dict:
     sol_t: dict[str, Counter] = {}
     sol_last: dict[str, int] = {}
     status: dict[str, dict] = {}
-    for key, msg, _payload, log_ns in read_mcap(mcap, [r"/sensor/stream$", r"/nav/(.+/)?(solution|status)$"]):
+    for key, msg, _payload, _log_ns in read_mcap(mcap, [r"/sensor/stream$", r"/nav/(.+/)?(solution|status)$"]):
         rel = key.split("/", 3)[3]
         if rel == "sensor/stream" and msg and msg.get("schema") == "stream_start":
-            t_start = log_ns  # published just before the first IMU sample
+            t_start = msg["pub_ns"]  # published just before the first IMU sample
         elif rel == "sensor/stream" and msg and msg.get("schema") == "stream_end":
             end = msg
         elif rel.startswith("nav/") and rel.endswith("/solution") or rel == "nav/solution":
             sol_t.setdefault(rel, Counter())[msg["t_ns"]] += 1
-            sol_last[rel] = log_ns
+            sol_last[rel] = max(sol_last.get(rel, 0), msg["pub_ns"])
         elif rel.startswith("nav/") and rel.endswith("status") and msg:
             status[rel] = msg.get("stream", {})
     imu = int(end.get("counts", {}).get("imu", -1))

@@ -108,31 +108,23 @@ def monitor_cmd(ctx):
 def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicle, mode, zenoh_config, connect,
                listen) -> None:
     """Record every sample on the chosen keys to an MCAP file (Foxglove-openable)."""
-    from . import messages as M
     from .bus import Bus
-    from .recording import McapRecorder
+    from .recording import McapRecorder, SolutionTally
     from .service import setup_logging
 
     setup_logging("INFO")
     bus = Bus("record", vehicle, mode=mode, config=zenoh_config, connect=connect, listen=listen, token=False)
     rec = McapRecorder(output, encoding)
     ev = _stop_event()
-    expected: dict[str, int | None] = {}  # per ins (nav status key): solutions of its finished stream
+    tally = SolutionTally()  # per ins: solutions of its finished stream against the distinct ones recorded
 
     def on_sample(key: str, payload: bytes, recv_ns: int) -> None:
-        rec.add(key, payload, recv_ns)
+        msg = rec.add(key, payload, recv_ns)
         if count is not None and rec.count >= count:
             ev.set()
         if until_stream_end:
-            stream = M.stream_of(key)
-            if stream is not None and stream.name == "nav/status":  # <base>/nav[/<prefix>]/status
-                try:
-                    st = M.decode(payload).get("stream", {})
-                    expected[key] = st.get("solutions") if st.get("done") else None
-                except Exception:
-                    pass
-            if expected and all(n is not None and rec.per_key.get(k[:-len("status")] + "solution", 0) >= n
-                                for k, n in expected.items()):
+            tally.add(key, msg)
+            if tally.complete():
                 ev.set()
 
     for k in keys or [bus.keys.all()]:
@@ -145,14 +137,15 @@ def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicl
         if until_stream_end:  # every ins acknowledged its end: its missing solutions get END_GRACE_S to arrive
             ended_at = None
             while not wait_event(ev, 0.5) and (duration is None or time.monotonic() - t0 < duration):
-                if ended_at is None and expected and all(n is not None for n in expected.values()):
+                if ended_at is None and tally.ended():
                     ended_at = time.monotonic()
                 if ended_at is not None and time.monotonic() - ended_at > END_GRACE_S:
-                    short = {k: n - rec.per_key.get(k[:-len("status")] + "solution", 0) for k, n in expected.items()
-                             if n is not None}
-                    click.echo(f"solutions missing after the stream end (a restarted ins's, lost with it): {short}",
-                               err=True)
+                    click.echo("solutions missing after the stream end (sent by a killed ins before its checkpoint, "
+                               "lost with it; see zennav.recording.SolutionTally)", err=True)
                     break
+            if tally.expected:
+                click.echo(f"solutions: {tally.summary()}; not recovered by the subscription: "
+                           f"{dict(bus.missed) or 0}", err=True)
         else:
             wait_event(ev, duration)
     finally:

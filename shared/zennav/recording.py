@@ -79,6 +79,52 @@ def _compression():
         return CompressionType.NONE
 
 
+class SolutionTally:
+    """`zennav record --until-stream-end`: per ins (its nav status key, also with a --nav-prefix), the solutions of
+    its finished stream (the status's stream.solutions, one per IMU sample) against the distinct solution times
+    recorded on its solution key. ``complete()``: every ins seen acknowledged its end and all its solutions are in.
+
+    A resumed ins (zennav.checkpoint) publishes the solutions since its checkpoint again: recorded, counted as
+    repeats. Solutions a killed ins had put but not yet sent (queued in its own zenoh transmit queue, behind a slow
+    consumer) and that precede its checkpoint cannot be recovered: its publisher's cache died with it and the
+    resumed ins starts after them. They are counted as missing, exactly (expected minus distinct times)."""
+
+    def __init__(self) -> None:
+        self.expected: dict[str, int | None] = {}  # nav status key -> solutions of its finished stream
+        self.times: dict[str, set[int]] = {}  # nav solution key -> distinct solution times [ns]
+        self.repeats: dict[str, int] = {}  # nav solution key -> solutions received again (same time)
+
+    def add(self, key: str, msg: dict | None) -> None:
+        """A validated message recorded on key (None: invalid, ignored)."""
+        stream = M.stream_of(key)
+        if msg is None or stream is None:
+            return
+        if stream.name == "nav/status":
+            st = msg.get("stream", {})
+            self.expected[key] = st.get("solutions") if st.get("done") else None
+        elif stream.name == "nav/solution":
+            times = self.times.setdefault(key, set())
+            if msg["t_ns"] in times:
+                self.repeats[key] = self.repeats.get(key, 0) + 1
+            times.add(msg["t_ns"])
+
+    def ended(self) -> bool:
+        """Every ins seen acknowledged its stream's end."""
+        return bool(self.expected) and all(n is not None for n in self.expected.values())
+
+    def missing(self) -> dict[str, int]:
+        """Per solution key of an ins that acknowledged its end: solutions not recorded."""
+        return {k[:-len("status")] + "solution": n - len(self.times.get(k[:-len("status")] + "solution", ()))
+                for k, n in self.expected.items() if n is not None}
+
+    def complete(self) -> bool:
+        return self.ended() and not any(self.missing().values())
+
+    def summary(self) -> str:
+        return "; ".join(f"{k}: {len(self.times.get(k, ()))} solutions, {self.repeats.get(k, 0)} repeated (a resumed "
+                         f"ins's), {n} missing" for k, n in self.missing().items())
+
+
 class McapRecorder:
     """Writes (key, payload, recv_ns) or (key, message) to an MCAP file with the Foxglove views; thread-safe."""
 
@@ -118,8 +164,8 @@ class McapRecorder:
             self._schemas[name] = sid
         return sid
 
-    def add(self, key: str, payload: bytes, recv_ns: int) -> None:
-        """A payload as received on key at wall time recv_ns [ns]."""
+    def add(self, key: str, payload: bytes, recv_ns: int) -> dict | None:
+        """A payload as received on key at wall time recv_ns [ns]; returns its validated message (None: invalid)."""
         msg = None
         try:
             m = M.decode(payload)
@@ -128,6 +174,7 @@ class McapRecorder:
         except Exception:
             pass
         self.add_message(key, msg, payload, recv_ns)
+        return msg
 
     def add_message(self, key: str, msg: dict | None, payload: bytes | None = None, recv_ns: int = 0) -> None:
         """A validated message (or None: an undecodable payload) of key; its Foxglove views after it."""

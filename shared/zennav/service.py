@@ -5,6 +5,10 @@ A service's ``main(argv=None)`` builds an ``argparse`` parser with ``add_bus_arg
 ``ServiceRunner`` (which opens the Bus *without* the liveliness token), declares its subscribers and
 publishers, then calls ``runner.ready()`` (token + "running" status: the service is up only once it can
 receive) and ``runner.wait()`` until SIGINT/SIGTERM or ``runner.stop()``.
+
+A stop is bounded: --exit-deadline seconds after the first SIGINT/SIGTERM a service still running (a session
+close or a thread join that hangs) exits at once, code 1, with one error line. A service whose launcher died
+(zennav.pdeath sends it SIGTERM) is then gone within that time, whatever its stop was waiting for.
 """
 from __future__ import annotations
 
@@ -44,6 +48,8 @@ def add_bus_args(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     g.add_argument("--name", default=None, help="service name for liveliness/status (default: the service)")
     g.add_argument("--log-level", default=os.environ.get("ZENNAV_LOG", "INFO"))
     g.add_argument("--status-period", type=float, default=1.0, help="heartbeat period [s]")
+    g.add_argument("--exit-deadline", type=float, default=15.0,
+                   help="[s] after SIGINT/SIGTERM: exit at once (code 1) if the clean stop is not over by then")
     return p
 
 
@@ -77,14 +83,27 @@ class ServiceRunner:
         self.counters: Callable[[], dict] = dict
         self._stop = threading.Event()
         self._period = args.status_period
+        self._exit_deadline_s = args.exit_deadline
+        self._deadline: threading.Timer | None = None
         self._hb: threading.Thread | None = None
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, self._on_signal)
 
     def _on_signal(self, signum, frame) -> None:
-        self.log.info("%s received, stopping", signal.Signals(signum).name)
+        name = signal.Signals(signum).name
+        self.log.info("%s received, stopping", name)
         self._stop.set()
+        if self._deadline is None:  # the first signal arms the deadline of the stop (module docstring)
+            self._deadline = threading.Timer(self._exit_deadline_s, self._exit_now, args=(name,))
+            self._deadline.daemon = True
+            self._deadline.start()
+
+    def _exit_now(self, signame: str) -> None:
+        self.log.error("still running %.0f s after %s: exiting without a clean stop", self._exit_deadline_s,
+                       signame)
+        logging.shutdown()
+        os._exit(1)
 
     def ready(self, state: str = "running", detail: str = "") -> None:
         """Declare the liveliness token and start the heartbeat: call after the subscriptions exist."""

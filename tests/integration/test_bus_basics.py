@@ -104,7 +104,7 @@ def test_late_joiner_gets_latest_model_and_status(cluster):
     version, the ins status and the services' status from the queryables."""
     k = cluster.keys
     cluster.service("ins")
-    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=20", "--speed", "0", wait=False)
+    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=10", "--speed", "0", wait=False)
     status = Collector(cluster.bus, k.nav_status(), channel="ring")
     status.wait(lambda c: any(m["stream"].get("done") for m in c.msgs()), 60, "ins stream done")
     assert ing.wait(30) == 0
@@ -119,5 +119,5 @@ def test_late_joiner_gets_latest_model_and_status(cluster):
     assert late.wait(60) == 0, late.text()
     snap = json.loads(late.text()[late.text().index("{"):late.text().rindex("}") + 1])
     assert snap["models"]["anfis"]["version"] == 3
-    assert snap["nav"]["stream"]["done"] is True and snap["nav"]["imu_count"] == 4000
+    assert snap["nav"]["stream"]["done"] is True and snap["nav"]["imu_count"] == 2000
     assert snap["services"]["ins"]["alive"] and snap["services"]["ins"]["state"] == "running"

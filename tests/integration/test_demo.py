@@ -32,7 +32,7 @@ def _running(pids: list[int]) -> list[str]:
 
 
 def test_demo_short_drive_says_learning_could_not_help(tmp_path):
-    """A 120 s drive with a 30 s outage at 60 s: exit 0, every output written, both distributed solutions (as
+    """A 60 s drive with a 20 s outage at 30 s: exit 0, every output written, both distributed solutions (as
     printed, in metrics.json and in the recording) equal their in-process replays, the learning loop had too few
     samples before the outage and the demo says so, and no process is left behind."""
     from zennav.datasets.registry import load_dataset
@@ -41,7 +41,7 @@ def test_demo_short_drive_says_learning_could_not_help(tmp_path):
     from zennav.replay import run_replay
 
     out = tmp_path / "demo"
-    p, pids = _demo("--duration", 120, "--outage", "60:30", "--out", out)
+    p, pids = _demo("--duration", 60, "--outage", "30:20", "--out", out)
     assert p.returncode == 0, p.stdout + p.stderr
     assert len(pids) == 9, p.stdout
     assert not _running(pids)
@@ -50,15 +50,15 @@ def test_demo_short_drive_says_learning_could_not_help(tmp_path):
         assert (out / name).stat().st_size > 0, name
     assert p.stdout.count("identical, bit for bit") == 2, p.stdout
     assert "LEARNING COULD NOT HELP" in p.stdout and "no model yet" in p.stdout, p.stdout
-    assert "outage 60s+30s" in p.stdout
+    assert "outage 30s+20s" in p.stdout
     m = json.loads((out / "metrics.json").read_text())
     assert m["pipeline"]["vs_in_process"]["bit_for_bit"] and m["pipeline"]["could_not_help"]
     assert m["pipeline"]["learning"]["sets_published"] == []
     assert m["outages"][0]["max_horizontal_m"] > 0
 
-    ds = load_dataset("sim:car", duration_s=120.0)
+    ds = load_dataset("sim:car", duration_s=60.0)
     ds.config = nav_config(ds.config, load_filter_params(None))
-    ref = run_replay(ds, outages=[(60.0, 30.0)])
+    ref = run_replay(ds, outages=[(30.0, 20.0)])
     for key in (r"/nav/solution$", r"/nav/plain/solution$"):
         sols = [msg for _k, msg, _p, _t in read_mcap(out / "demo.mcap", [key])]
         assert [s["seq"] for s in sols] == list(range(len(ref.t_ns)))
@@ -68,12 +68,12 @@ def test_demo_short_drive_says_learning_could_not_help(tmp_path):
 
 
 def test_demo_learning_over_the_bus_lowers_the_outage_drift(tmp_path):
-    """A 360 s drive with a 60 s outage at 240 s: the trainer publishes sets from the ins's samples, the predictor
+    """A 200 s drive with a 60 s outage at 130 s: the trainer publishes sets from the ins's samples, the predictor
     answers the outage's queries, the ins fuses them, and the outage drift measured over the bus is well below the
-    plain ins's (in process this run gives 13.6 m without learning, 6.2 m with ANFIS); the learned solution equals
+    plain ins's (in process this run gives 11.5 m without learning, 5.3 m with ANFIS); the learned solution equals
     the in-process learning loop bit for bit."""
     out = tmp_path / "demo"
-    p, pids = _demo("--duration", 360, "--outage", "240:60", "--out", out, timeout=600)
+    p, pids = _demo("--duration", 200, "--outage", "130:60", "--out", out, timeout=600)
     assert p.returncode == 0, p.stdout + p.stderr
     assert not _running(pids)
     assert p.stdout.count("identical, bit for bit") == 2, p.stdout
@@ -81,7 +81,8 @@ def test_demo_learning_over_the_bus_lowers_the_outage_drift(tmp_path):
     learned = json.loads((out / "metrics.json").read_text())
     plain = json.loads((out / "no-learning" / "metrics.json").read_text())
     lo = learned["pipeline"]["learning"]
-    assert lo["sets_published"] and lo["answered"] >= 50 and lo["ins"]["fused"] >= 50, lo
+    # this drive: 38 of the outage's 60 queries answered (22 off the trained domain), all 38 fused
+    assert lo["sets_published"] and lo["answered"] >= 30 and lo["ins"]["fused"] >= 30, lo
     assert learned["compensation"]["where"].startswith("over the bus")
     drift, drift_plain = (m["outages"][0]["max_horizontal_m"] for m in (learned, plain))
     assert drift < 0.7 * drift_plain, (drift, drift_plain)

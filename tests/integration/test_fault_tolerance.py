@@ -1,7 +1,8 @@
 """Fault tolerance of the sensor stream with real processes over Zenoh (issue 19): a hijacking stream_start and
 samples built to stall the merge are refused with counted reasons and cost nothing; a message lost in transit
 costs a counted gap and the stream still ends; an ins killed with SIGKILL mid-stream and restarted resumes from
-its checkpoint and the samples the ingest kept for it, and navigates every sample as the replay does."""
+its checkpoint and the samples the ingest kept for it, and navigates every sample as the replay does; a killed
+attitude service rejoins the stream in flight."""
 from __future__ import annotations
 
 import signal
@@ -162,7 +163,8 @@ def test_router_killed_and_restarted_a_client_recovers_the_solutions(cluster):
     router (deploy/zenoh-client.json5: it reconnects). kill -9 of the router mid-stream, restarted 3 s later on
     the same endpoint: the client's recovering subscription fetches the solutions it missed from the ins's
     cache (zenoh's advanced publisher and subscriber; what it cannot recover is counted as missed): it gets
-    every solution (measured with a 2000-solution cache: 11178 received, 822 counted missed)."""
+    every solution of the 30 s stream (with a 60 s stream and a 2000-solution cache: 11178 received, 822
+    counted missed)."""
     from zennav_harness import free_port
 
     from zennav.bus import Bus
@@ -182,7 +184,7 @@ def test_router_killed_and_restarted_a_client_recovers_the_solutions(cluster):
                          channel="ring", name="client-status")
         cluster.start("ins", "zennav.services.ins", *bus_args, bus_args=False)
         wait_until(lambda: "ins" in client.alive(), 30, "the ins")
-        ing = cluster.start("ingest", "zennav.services.ingest", "sim:car", "-o", "duration_s=60", "--speed", "2",
+        ing = cluster.start("ingest", "zennav.services.ingest", "sim:car", "-o", "duration_s=30", "--speed", "2",
                             *bus_args, bus_args=False)
         wait_until(lambda: len(got) > 2000, 60, "10 s of solutions at the client")
         router.p.send_signal(signal.SIGKILL)
@@ -192,9 +194,126 @@ def test_router_killed_and_restarted_a_client_recovers_the_solutions(cluster):
         router = cluster.zennav("router", "router", "--listen", router_ep)
         assert ing.wait(120) == 0, ing.text()[-3000:]
         wait_until(lambda: done, 60, "the end status at the client")
-        wait_until(lambda: len(got) + sum(client.missed.values()) >= 12_000, 30, "every solution or its count")
+        wait_until(lambda: len(got) + sum(client.missed.values()) >= 6_000, 30, "every solution or its count")
         print(f"\nclient: {n_at_kill} solutions before the kill, {len(got)} in all, missed {dict(client.missed)}")
-        assert len(got) + sum(client.missed.values()) >= 12_000 and len(got) > n_at_kill
-        assert len(got) == 12_000 and not client.missed  # the ins's cache (--recovery-cache) outlasts the outage
+        assert len(got) + sum(client.missed.values()) >= 6_000 and len(got) > n_at_kill
+        assert len(got) == 6_000 and not client.missed  # the ins's cache (--recovery-cache) outlasts the outage
     finally:
         client.close()
+
+
+def test_attitude_killed_mid_stream_rejoins_the_live_stream(cluster):
+    """kill -9 of the attitude service 20 s into a 60 s stream paced at twice real time, restarted at once: it
+    re-initialises from the stream in flight (a late join, counted) and publishes again within seconds, an attitude
+    for every IMU sample from its join to the stream's end; what is lost is the dead window only."""
+    k = cluster.keys
+    att = Collector(cluster.bus, k.attitude())
+    status = Collector(cluster.bus, k.svc_status("attitude"), channel="ring")
+    imu = Collector(cluster.bus, k.imu())
+    args = ("--velocity-source", "none", "--status-period", "0.5")
+    first = cluster.service("attitude", *args)
+    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=60", "--speed", "2", "--wait-for", "attitude",
+                          wait=False)
+    att.wait(lambda c: len(c.msgs()) >= 4000, 60, "20 s of attitudes")
+    first.p.send_signal(signal.SIGKILL)
+    first.p.wait(5)
+    t_kill = time.monotonic()
+    src0 = att.msgs()[0]["src"]
+    cluster.wait_alive(["attitude"], 15, alive=False)
+    cluster.service("attitude", *args)
+    att.wait(lambda c: any(m["src"] != src0 for m in c.msgs()), 30, "an attitude from the restarted service")
+    back_s = time.monotonic() - t_kill
+    assert ing.wait(90) == 0, ing.text()[-3000:]
+    st = status.wait(lambda c: next((m for m in reversed(c.msgs()) if m["src"] != src0 and m["counters"].get("done")),
+                                    None), 60, "the restarted service's end of stream")["counters"]
+    t_imu = [m["t_ns"] for m in imu.msgs()]
+    att.wait(lambda c: sum(m["src"] != src0 for m in c.msgs()) >= st["published"], 30, "every attitude")
+    before = {m["t_ns"] for m in att.msgs() if m["src"] == src0}
+    after = [m["t_ns"] for m in att.msgs() if m["src"] != src0]
+    lost = len(set(t_imu) - before - set(after))
+    print(f"\nattitude killed after {len(before)} attitudes; the restarted one published again {back_s:.1f} s after "
+          f"the kill (late_join {st['late_join']}): {len(after)} attitudes, from "
+          f"{(after[0] - t_imu[0]) / 1e9:.1f} s of data to the end; {lost} IMU samples without an attitude (the dead "
+          "window)")
+    assert len(t_imu) == 12_000 and back_s < 20.0 and st["late_join"] == 1
+    assert st["published"] == st["imu"] == len(after) and after == t_imu[t_imu.index(after[0]):]
+    assert lost == t_imu.index(after[0]) - len(before) and lost < 400 * back_s  # 400 samples/s at twice real time
+
+
+def test_lockstep_learning_ins_killed_and_resumed_equals_the_in_process_loop(cluster, tmp_path):
+    """ins --learning --lockstep with a checkpoint, trainer, predictor --lockstep; kill -9 of the ins 60 s (or a
+    little more: it streams as fast as it drains) into a 150 s drive (GNSS outage at 100 s), restarted from its
+    checkpoint: it publishes again the learn samples it had sent since the checkpoint, the trainer drops them
+    (counted duplicate_samples), fits at the in-process loop's points, and the solution (each sample time once)
+    is the in-process loop's, bit for bit where no answer was fused (as in test_learning_services' lockstep
+    test)."""
+    from test_learning_services import wait_counter
+
+    from zennav.datasets.registry import load_dataset
+    from zennav.learn.loop import InProcessLoop
+    from zennav.learn.settings import LearnSettings
+    from zennav.replay import run_replay
+
+    k = cluster.keys
+    sols = Collector(cluster.bus, k.nav_solution())
+    status = Collector(cluster.bus, k.nav_status(), channel="ring")
+    models = Collector(cluster.bus, k.learn_model())
+    svc = Collector(cluster.bus, k.svc_status(), channel="ring", capacity=64)
+    settings = LearnSettings(min_samples=60, n_rules=4, max_epochs=5)
+    cluster.service("predictor", "--lockstep", "--status-period", "0.2")
+    cluster.service("trainer", "--min-samples", "60", "--n-rules", "4", "--max-epochs", "5", "--torch-threads", "1",
+                    "--device", "cpu", "--status-period", "0.2")
+    args = ("--learning", "--lockstep", "--checkpoint", tmp_path / "ins.ckpt", "--checkpoint-every", "5",
+            "--status-period", "0.1")
+    ins = cluster.service("ins", *args)
+    duration, outage = 150.0, (100.0, 20.0)
+    ing = cluster.service("ingest", "sim:car", "-o", f"duration_s={duration:g}", "--speed", "0",
+                          "--outage", f"{outage[0]:g}:{outage[1]:g}", wait=False)
+    status.wait(lambda c: any(m["t_ns"] - c.msgs()[0]["t_ns"] > 60e9 for m in c.msgs()), 240, "60 s of the stream")
+    ins.p.send_signal(signal.SIGKILL)
+    ins.p.wait(5)
+    t_kill = status.msgs()[-1]["t_ns"]
+    cluster.wait_alive(["ins"], 15, alive=False)
+    cluster.service("ins", *args)
+    loop = InProcessLoop("body_velocity", settings)  # the reference, while the restarted ins resumes
+    ref = run_replay(load_dataset("sim:car", duration_s=duration), outages=[outage], compensator=loop)
+    st = status.wait(lambda c: next((m for m in c.msgs() if m["stream"].get("done")), None), 240,
+                     "the resumed ins to finish the stream")
+    assert ing.wait(60) == 0, ing.text()[-3000:]
+    assert st["stream"]["resumed"] == 1 and st["model"].get("lockstep_timeouts", 0) == 0, st
+    n = len(ref.t_ns)
+    sols.wait(lambda c: len({m["t_ns"] for m in c.msgs()}) >= n, 60, "every solution")
+    by_t = {m["t_ns"]: m for m in sols.msgs()}  # a sample navigated twice (before the kill, after the checkpoint)
+    assert np.array_equal(sorted(by_t), ref.t_ns)
+    learned = [r for r in ref.reports if r.source == "learned_body_velocity"]
+    fused_at = np.isin(ref.t_ns, [r.t_ns for r in learned if r.fused])
+    for field, want in (("llh", ref.llh), ("v_n", ref.v_n), ("q_nb", ref.q_nb)):
+        got = np.array([by_t[t][field] for t in ref.t_ns])
+        same = np.all(got == want, axis=1)
+        assert np.array_equal(same | fused_at, np.ones(n, dtype=bool)), f"{field} differs from the in-process loop"
+    tc = wait_counter(svc, "trainer", lambda c: c.get("duplicate_samples", 0) > 0, 20, "the trainer's count")
+    sets = models.wait(lambda c: c.msgs() if len(c.msgs()) >= loop.version else None, 20, "the trainer's sets")
+    assert [m["metrics"]["samples_seen"] for m in sets] == [60, loop.core.live["body_velocity"].samples_seen]
+    c = tc["counters"]
+    print(f"\nins killed at {(t_kill - int(ref.t_ns[0])) / 1e9:.0f} s and resumed: {n} solutions equal the in-process "
+          f"loop's; trainer dropped {c['duplicate_samples']} samples sent again, received "
+          f"{c['received_body_velocity']}; sets through {[m['metrics']['samples_seen'] for m in sets]}")
+
+
+def test_ingest_streams_on_without_a_service_that_stays_down(cluster):
+    """An as-fast-as-drained ingest that awaits the ins and the attitude service: the attitude service is killed
+    for good mid-stream. The ingest pauses once, --rejoin-timeout seconds, then streams on without it (not one
+    pause per message) and the ins still gets the whole stream."""
+    status = Collector(cluster.bus, cluster.keys.nav_status(), channel="ring")
+    cluster.service("ins")
+    att = cluster.service("attitude")
+    ing = cluster.service("ingest", "sim:car", "-o", "duration_s=120", "--speed", "0", "--wait-for", "ins,attitude",
+                          "--rejoin-timeout", "2", wait=False)
+    status.wait(lambda c: any(m["imu_count"] > 1000 for m in c.msgs()), 60, "the stream under way")
+    att.kill()
+    assert ing.wait(90) == 0, ing.text()[-3000:]
+    st = status.wait(lambda c: next((m for m in c.msgs() if m["stream"].get("done")), None), 30, "the ins's end")
+    text = ing.text()
+    print(f"\ningest: {text.count('pausing the stream')} pause(s), "
+          f"{text.count('streaming on without')} time(s) streamed on without the dead service")
+    assert text.count("streaming on without ['attitude']") == 1 and st["imu_count"] == 24_000, text[-3000:]

@@ -65,13 +65,25 @@ class SecureBus:
 
     def put(self, identity: str, *extra: str, tag: str | None = None, endpoint: str | None = None) -> dict:
         """Run put_node.py (COUNT payloads on every key) as ``identity``; its JSON result."""
-        argv = [PY, PUT_NODE, "--endpoint", endpoint or self.endpoint, "--identity", identity, "--count", str(COUNT),
-                "--tag", tag or identity, *extra]
-        for key in KEYS.values():
-            argv += ["--key", key]
-        out = subprocess.run(argv, env=self.env, capture_output=True, text=True, timeout=60)
-        assert out.returncode == 0, out.stderr[-3000:]
-        return json.loads(out.stdout.strip().splitlines()[-1])
+        return self.put_all({tag or identity: (identity, extra, endpoint)})[tag or identity]
+
+    def put_all(self, cases: dict[str, tuple]) -> dict[str, dict]:
+        """put() for every tag -> (identity, extra arguments, endpoint or None) at once (concurrent processes: a
+        refused one waits for its connect timeout); the JSON result per tag."""
+        procs = {}
+        for tag, (identity, extra, endpoint) in cases.items():
+            argv = [PY, PUT_NODE, "--endpoint", endpoint or self.endpoint, "--identity", identity, "--count",
+                    str(COUNT), "--tag", tag, *extra]
+            for key in KEYS.values():
+                argv += ["--key", key]
+            procs[tag] = subprocess.Popen(argv, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                          text=True)
+        out = {}
+        for tag, p in procs.items():
+            stdout, stderr = p.communicate(timeout=60)
+            assert p.returncode == 0, (tag, stderr[-3000:])
+            out[tag] = json.loads(stdout.strip().splitlines()[-1])
+        return out
 
     def close(self) -> None:
         self.bus.close()
@@ -85,18 +97,17 @@ def secure(tmp_path_factory):
     s.close()
 
 
-@pytest.mark.parametrize("identity", sorted(OWNS))
-def test_only_the_owner_of_a_key_can_put_on_it(secure, identity):
-    """Each identity puts on every sensor, navigation, model and learned-answer key: the authorised subscriber
-    gets exactly the keys the identity owns (all COUNT samples) and nothing of the others."""
-    res = secure.put(identity)
-    assert res["opened"], res
-    want = {name: COUNT if name in OWNS[identity] else 0 for name in KEYS}
-    if OWNS[identity]:
-        wait_until(lambda: all(secure.received(identity)[n] >= COUNT for n in OWNS[identity]), 20,
-                   f"{identity}'s authorised samples")
+def test_only_the_owner_of_a_key_can_put_on_it(secure):
+    """Each identity (all at once, one client each) puts on every sensor, navigation, model and learned-answer
+    key: the authorised subscriber gets exactly the keys the identity owns (all COUNT samples) and nothing of the
+    others."""
+    for identity, res in secure.put_all({i: (i, (), None) for i in sorted(OWNS)}).items():
+        assert res["opened"], (identity, res)
+    wait_until(lambda: all(secure.received(i)[n] >= COUNT for i, names in OWNS.items() for n in names), 20,
+               "every owner's authorised samples")
     time.sleep(1.0)  # anything denied would have arrived by now
-    assert secure.received(identity) == want
+    for identity, names in OWNS.items():
+        assert secure.received(identity) == {name: COUNT if name in names else 0 for name in KEYS}, identity
 
 
 def test_credentials_of_two_identities_do_not_combine(secure):
@@ -115,18 +126,16 @@ def test_unauthenticated_clients_are_refused(secure, tmp_path):
     rogue = tmp_path / "rogue"
     make_certs(rogue, identities=("ingest",))
     cases = {
-        "nocert": ("--no-cert",),
-        "rogueca": ("--cert", str(rogue / "ingest.pem"), "--key-file", str(rogue / "ingest.key")),
-        "badpw": ("--password", "not-the-password"),
-        "otherpw": ("--password", (secure.creds / "ins.secret").read_text()),
+        "nocert": ("ingest", ("--no-cert",), None),
+        "rogueca": ("ingest", ("--cert", str(rogue / "ingest.pem"), "--key-file", str(rogue / "ingest.key")), None),
+        "badpw": ("ingest", ("--password", "not-the-password"), None),
+        "otherpw": ("ingest", ("--password", (secure.creds / "ins.secret").read_text()), None),
+        "tcp": ("ingest", (), f"tcp/127.0.0.1:{secure.port}"),
     }
-    for tag, extra in cases.items():
-        res = secure.put("ingest", *extra, tag=tag)
+    for tag, res in secure.put_all(cases).items():
         assert not res["opened"], (tag, res)
-    res = secure.put("ingest", tag="tcp", endpoint=f"tcp/127.0.0.1:{secure.port}")
-    assert not res["opened"], res
     time.sleep(1.0)
-    for tag in [*cases, "tcp"]:
+    for tag in cases:
         assert secure.received(tag) == dict.fromkeys(KEYS, 0), tag
     assert secure.router.alive()
 

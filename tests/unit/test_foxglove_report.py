@@ -18,7 +18,7 @@ def test_replay_mcap_and_report(tmp_path):
     from zennav.recording import read_mcap
 
     out, mcap = tmp_path / "run", tmp_path / "run.mcap"
-    r = CliRunner().invoke(main, ["replay", "sim:car", "-o", "duration_s=160", "--outage", "100:30", "--out", str(out),
+    r = CliRunner().invoke(main, ["replay", "sim:car", "-o", "duration_s=80", "--outage", "50:20", "--out", str(out),
                                   "--mcap", str(mcap)])
     assert r.exit_code == 0, r.output
     sols = [m for _k, m, _p, _t in read_mcap(mcap, [r"/nav/solution$"])]

@@ -2,8 +2,8 @@
 
 Wiring table
     subscribes <base>/sensor/**       the sensor stream (zennav.stream.StreamFollower: one stream, cseq order,
-                                      late join at the first IMU sample): stream_start -> new filter; imu -> one
-                                      filter step; stream_end -> stream summary
+                                      late join at the first IMU sample, also after a restart): stream_start ->
+                                      new filter; imu -> one filter step; stream_end -> stream summary
                <base>/nav/solution    latest position/velocity -> omega_in_n = omega_ie_n + omega_en_n, used while
                                       at most --rate-max-age old (sample time); with --velocity-source ins (the
                                       default) also the velocity whose derivative, a_b, compensates the vehicle's
@@ -74,10 +74,12 @@ def main(argv=None) -> int:
     run.counters = node.counters
     run.bus.subscribe(k.nav_solution(), lambda key, msg, recv_ns: node.on_solution(msg), channel="ring",
                       capacity=64, name="solution")
-    # every sensor message of the live stream goes through the cseq merge (GNSS included, or it would leave gaps)
-    # recovering: a restarted attitude service fetches the ingest's cache and levels again from there
-    run.bus.recovering_subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
-                                 capacity=args.queue, name="sensors")
+    # every sensor message of the live stream goes through the cseq merge (GNSS included, or it would leave gaps).
+    # A restarted attitude service re-initialises from the stream in flight: it joins late at the next IMU sample
+    # and levels from there (counted: late_join). It fetches no history: replaying the ingest's cache from the
+    # stream's start would repeat attitudes already published, and the burst stalled a paced stream's restart.
+    run.bus.subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
+                      capacity=args.queue, name="sensors")
     start_ticker(node.follower, run.bus.callback_lock, lambda: run.stopping)
     return run.serve("running", f"waiting for a sensor stream; gains from {origin}; gravity reference: "
                                 f"{node.reference()}")

@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gnss-silence", type=float, default=2.0, help="[s] receiver silence that is counted and logged")
     p.add_argument("--cache", type=int, default=20000,
                    help="sensor messages kept per key for consumers that recover what they missed (a restarted "
-                        "ins or attitude service fetches them; zenoh's advanced publisher); 0: plain publishers")
+                        "ins fetches them; zenoh's advanced publisher); 0: plain publishers")
     p.add_argument("--max-lead", type=int, default=10000,
                    help="with --speed 0: stay at most this many messages ahead of the slowest ins following the "
                         "stream (its nav status), so that what a crashed ins had queued is still in the --cache; "
@@ -177,10 +177,10 @@ def _run(run, args, speed: float, acks: EndAcks, pubs: dict, aid_publisher, stat
         run.set_state("running", f"streaming {ds.name}")
         hold = None
         if speed == 0 and waits:
-            progress = Progress(run.bus, args.rejoin_timeout)
+            progress, given_up = Progress(run.bus, args.rejoin_timeout), set[str]()  # still down after the timeout
 
             def hold(cseq: int) -> None:
-                hold_while_down(run, waits, args.rejoin_timeout, stats)
+                hold_while_down(run, waits, args.rejoin_timeout, stats, given_up)
                 if args.max_lead > 0:
                     progress.wait_within(cseq, args.max_lead, run)
         msgs = (stream_messages(ds, windows, events, args.batch) if receiver is None else

@@ -45,17 +45,13 @@ import argparse
 import os
 import sys
 import threading
-from typing import TYPE_CHECKING
 
 from zennav.learn.fit_worker import FitWorker
 from zennav.learn.settings import MODELS, OPTIMIZERS, LearnSettings
 from zennav.learn.signing import Signer
 from zennav.nav.learning import TARGETS
-from zennav.nodes.trainer import TrainerNode, VersionFile
+from zennav.nodes.trainer import ModelPublishers, TrainerNode, VersionFile, train_loop
 from zennav.service import ArgumentParser, ServiceRunner, add_bus_args
-
-if TYPE_CHECKING:
-    from zennav.bus import Publisher
 
 DEFAULTS = LearnSettings()
 
@@ -128,61 +124,22 @@ def main(argv=None) -> int:
     device = args.device or device
     k = run.keys
     bus = run.bus
-    pubs: dict[str, Publisher] = {}
-    pub_lock = threading.Lock()
-
-    def publish(name: str, msg: dict) -> None:
-        with pub_lock:
-            p = pubs.get(name)
-            if p is None:
-                p = pubs[name] = bus.publisher(k.learn_model(name))
-            p.put(msg)
-
-    node = TrainerNode(publish, run.log, targets, settings, prefix=args.prefix, device=device,
+    models = ModelPublishers(bus, run.log)
+    node = TrainerNode(models.publish, run.log, targets, settings, prefix=args.prefix, device=device,
                        first_version=args.first_version, signer=signer, versions=versions, fitter=worker)
     for t, name in node.names.items():  # continue the version numbering of a set already on the bus
         for _key, msg in bus.get_latest(k.learn_model(name), timeout=2.0):
             if msg["name"] == name:
                 node.seen_version(t, msg["version"])
-    link = {"up": True, "losses": 0, "republished": 0}
     run.describe = node.detail  # its sets, and "fitting ..." while a fit runs
-    run.counters = lambda: {**node.counters(), "link_losses": link["losses"], "republished": link["republished"]}
+    run.counters = lambda: {**node.counters(), **models.counters()}
     bus.subscribe(k.learn_samples(), lambda key, msg, recv_ns: node.on_sample(msg), channel="fifo", capacity=8192,
                   name="samples")
     bus.subscribe(k.learn_query(), lambda key, msg, recv_ns: node.on_query(msg), channel="fifo", capacity=8192,
                   name="query")
-
-    def connected() -> bool:
-        return bool(bus.routers() or bus.peers())
-
-    def watch_link() -> None:  # a client's session reconnects by itself; re-publish the latest sets when it does
-        while not run.wait(args.link_poll):
-            up = connected()
-            if up == link["up"]:
-                continue
-            link["up"] = up
-            if not up:
-                link["losses"] += 1
-                run.log.warning("link to the router lost; training goes on with the %s samples received",
-                                sum(lr.received for lr in node.learners.values()))
-                continue
-            with pub_lock:
-                for p in pubs.values():
-                    if p.latest is not None:
-                        p.put_raw(p.latest)
-                        link["republished"] += 1
-            run.log.info("link to the router restored; latest sets re-published (%s)", ", ".join(pubs) or "none yet")
-
-    def train_loop() -> None:
-        while not run.stopping:
-            for t in node.wait_due():
-                if run.stopping:
-                    break
-                node.train(t)
-                run.heartbeat()  # the progress now: a lockstep predictor waits on it (zennav.services.predictor)
-
-    link["up"] = connected()
-    threads = [threading.Thread(target=f, name=f"zennav-{f.__name__}", daemon=True) for f in (watch_link, train_loop)]
+    threads = [threading.Thread(target=models.watch, args=(run, args.link_poll, node.received),
+                                name="zennav-watch_link", daemon=True),
+               threading.Thread(target=train_loop, args=(run, node), name="zennav-train_loop", daemon=True)]
     for th in threads:
         th.start()
     run.ready("running", node.detail())

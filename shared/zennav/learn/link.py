@@ -6,7 +6,9 @@ Every query carries n_samples, the number of samples of its target variant publi
 started), so that the trainer fits through exactly those and the predictor (in lockstep) answers with that set
 (zennav.learn.learner). The counts agree only if the trainer received every sample this link published: a
 trainer started later (or restarted) never gets a fit point through n; outside lockstep the predictor then
-answers with its live set, as it would without n_samples.
+answers with its live set, as it would without n_samples. Every sample carries the stream's src and its index
+(the count of its variant published before it, restored with a checkpoint): a trainer drops the samples a resumed
+ins sends again (zennav.nodes.trainer).
 Lockstep (lockstep_timeout_s > 0; a replay of a recording): after publishing queries, ``after_imu`` waits for
 their answers (or refusals) before it returns, i.e. before the ins consumes its next sensor sample, up to the
 timeout (counted: lockstep_timeouts). The wait is on a condition of ``lock``, the lock the answers' callback runs
@@ -46,11 +48,13 @@ class LearningLink:
         self.counts: Counter[str] = Counter()
         self.last_model = ""
         self.last_version = -1
+        self.stream: str | None = None  # src of the sensor stream followed (stamped on the samples)
         self._n = 0
 
-    def reset(self) -> None:
-        """A new stream: pending queries are unanswered. The sample counts go on: the trainer counts every sample
-        it received from the start, whatever the stream."""
+    def reset(self, stream: str | None = None) -> None:
+        """A new stream (its src): pending queries are unanswered. The sample counts go on: the trainer counts
+        every sample it received from the start, whatever the stream."""
+        self.stream = stream
         with self.cv:
             if self.pending:
                 self.counts["unanswered"] += len(self.pending)
@@ -59,7 +63,7 @@ class LearningLink:
     def after_imu(self, nav) -> None:
         for s in nav.pop_samples():
             if s.target in self.targets:
-                self.publish("sample", M.learn_sample_msg(s))
+                self.publish("sample", M.learn_sample_msg(s, self.stream, self.sent[s.target]))
                 self.sent[s.target] += 1
                 self.counts["samples"] += 1
         queries = nav.pop_queries()

@@ -29,8 +29,10 @@ def check_model_params(msg: dict) -> str:
 
 define("learn_sample", 1, "Training pair emitted while GNSS is valid: features and target (normalisation is the "
        "trainer's), variant names the target definition (zennav.nav.learning.TARGETS; target has OUTPUTS[variant] "
-       "values).",
-       features=FLOATS, target=FLOATS, variant=STR)
+       "values). stream and index (optional, added compatibly): the src of the sensor stream the sample comes from "
+       "and its ordinal among the sender's samples of its variant (the count published before it, restored with "
+       "the ins's checkpoint), so that a receiver can drop a sample a restarted ins sends again.",
+       features=FLOATS, target=FLOATS, variant=STR, stream=OPT(STR), index=OPT(INT))
 define("learn_query", 1, "Prediction request of the ins while GNSS is lost (zennav.nav.learning.LearnQuery): "
        "t_ns the query time, target the variant, features as in learn_sample, dt_s the interval of a rate target "
        "[s]. The query is identified by its header (src, seq); the answer is one correction naming them. "
@@ -79,10 +81,11 @@ def map_array(m: dict) -> np.ndarray:
     return np.asarray(m["data"], dtype=np.float64).reshape(m["shape"])
 
 
-def learn_sample_msg(sample) -> dict:
-    """zennav.nav.learning.LearnSample -> learn_sample message."""
+def learn_sample_msg(sample, stream: str | None = None, index: int | None = None) -> dict:
+    """zennav.nav.learning.LearnSample -> learn_sample message (stream: the sensor stream's src; index: the
+    sample's ordinal among its variant's samples from this sender)."""
     return make("learn_sample", sample.t_ns, features=floats(sample.features), target=floats(sample.value),
-                variant=str(sample.target))
+                variant=str(sample.target), stream=stream, index=None if index is None else int(index))
 
 
 def learn_query_msg(query, n_samples: int | None = None) -> dict:

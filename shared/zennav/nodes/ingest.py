@@ -38,22 +38,27 @@ class Progress:
                 self._cv.wait(0.2)
 
 
-def hold_while_down(run, waits: list, timeout: float, stats: dict) -> None:
+def hold_while_down(run, waits: list, timeout: float, stats: dict, given_up: set) -> None:
     """As fast as the consumers drain: pause while an awaited service is down (restarting: it recovers the
-    messages it missed from the cache), at most timeout [s] per outage."""
-    if set(waits) <= run.bus.alive():
+    messages it missed from the cache), at most timeout [s] per outage. A service still down after that is in
+    given_up: not waited for again until it is back (then its next outage pauses the stream again), so a service
+    that stays down costs one timeout, not one per message."""
+    alive = run.bus.alive()
+    given_up &= set(waits) - alive  # those back alive are awaited again
+    need = [w for w in waits if w not in given_up]
+    if set(need) <= alive:
         return
-    down = sorted(set(waits) - run.bus.alive())
     log = run.log
-    log.warning("pausing the stream: %s down", down)
+    log.warning("pausing the stream: %s down", sorted(set(need) - alive))
     t0 = time.monotonic()
     ok = False
     while not (ok or run.stopping) and time.monotonic() - t0 < timeout:
-        ok = run.bus.wait_alive(waits, 0.5)
+        ok = run.bus.wait_alive(need, 0.5)
     stats["paused_s"] += round(time.monotonic() - t0)
+    if not ok:
+        given_up |= set(need) - run.bus.alive()
     (log.info if ok else log.error)("%s after %.1f s", "streaming on: all back" if ok else
-                                    f"streaming on without {sorted(set(waits) - run.bus.alive())}",
-                                    time.monotonic() - t0)
+                                    f"streaming on without {sorted(given_up)}", time.monotonic() - t0)
 
 
 def stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=None) -> int | None:

@@ -124,7 +124,7 @@ class InsNode:
         initial = M.map_to_dataclass(InitialState, initial_map)
         if self.learn is not None:
             config = config.with_(learning=True)
-            self.learn.reset()
+            self.learn.reset(start["src"])
         self.nav = nav = Navigator(config, initial)
         self._initial, self._late, self._t_imu = initial_map, late, int(initial.t_ns)
         self._held.clear()

@@ -1,12 +1,18 @@
-"""The trainer service's core, transport-free: one zennav.learn.learner.Learner per target variant fed with the
-ins's learn_sample messages and the sample counts of its learn_query messages; the fits run on the caller's
-training thread and each set goes to ``publish(name, model_params message)`` (see zennav.services.trainer for the
-wiring, ARCHITECTURE.md section 3 for the loop).
+"""The trainer service's core: one zennav.learn.learner.Learner per target variant fed with the ins's
+learn_sample messages and the sample counts of its learn_query messages (TrainerNode, transport-free); the fits
+run on the training thread (``train_loop``) and each set goes to ``publish(name, model_params message)``, the
+bus's model publishers (ModelPublishers, which also re-publish the latest sets when a lost link to the router
+comes back); see zennav.services.trainer for the wiring, ARCHITECTURE.md section 3 for the loop.
 
 Versions survive a restart: with a state directory, the last version of each model name is written there (atomically,
 before the set is published) and a restarted trainer continues above it; the trainer also continues above a set it
 finds on the bus (zennav.services.trainer). The held samples are not persisted: a restarted trainer learns again
-from the samples that arrive (its first set after min_samples of them)."""
+from the samples that arrive (its first set after min_samples of them).
+
+Samples sent twice: an ins resumed from its checkpoint publishes again the samples it had published since (same
+stream, same times, same indices). Per variant and stream, a sample that is not after the last one accepted (an
+earlier time, or the same time and an index not above its index) is dropped and counted (duplicate_samples): the
+learner holds each sample once, as in a run without the crash."""
 from __future__ import annotations
 
 import json
@@ -71,6 +77,7 @@ class TrainerNode:
         self.version = {t: max(int(first_version) - 1, kept.get(self.names[t], 0)) for t in self.targets}
         self.counts: Counter[str] = Counter()
         self.busy = ""
+        self._last: dict[tuple, tuple] = {}  # (variant, stream) -> (t_ns, index) of the last sample accepted
 
     # ------------------------------------------------------------------ input
     def on_sample(self, msg: dict) -> None:
@@ -81,9 +88,26 @@ class TrainerNode:
         if len(msg["features"]) != len(FEATURES[t]) or len(msg["target"]) != len(OUTPUTS[t]):
             self.counts["ignored_shape"] += 1
             return
+        if self._sent_again(t, msg):
+            self.counts["duplicate_samples"] += 1
+            n = self.counts["duplicate_samples"]
+            if n <= 3 or n % 1000 == 0:
+                self.log.warning("%s sample at t=%d ns from %s sent again: dropped (#%d duplicate_samples)", t,
+                                 msg["t_ns"], msg.get("src"), n)
+            return
         self.learners[t].add(msg["t_ns"], msg["features"], msg["target"])
         with self.cv:
             self.cv.notify()
+
+    def _sent_again(self, target: str, msg: dict) -> bool:
+        """Whether msg repeats a sample of target already accepted (module docstring); else it is the last."""
+        key, this = (target, msg.get("stream")), (msg["t_ns"], msg.get("index"))
+        last = self._last.get(key)
+        if last is not None and (this[0] < last[0] or (this[0] == last[0] and this[1] is not None
+                                                       and last[1] is not None and this[1] <= last[1])):
+            return True
+        self._last[key] = this
+        return False
 
     def on_query(self, msg: dict) -> None:
         """A learn_query: its n_samples asks for a set through exactly that many samples of its variant."""
@@ -144,6 +168,10 @@ class TrainerNode:
         return msg
 
     # ------------------------------------------------------------------ status
+    def received(self) -> int:
+        """Samples received, all targets."""
+        return sum(lr.received for lr in self.learners.values())
+
     def counters(self) -> dict:
         c = dict(self.counts)
         for t, lr in self.learners.items():
@@ -155,3 +183,59 @@ class TrainerNode:
         s = "; ".join(f"{lr.name} v{lr.last['version']} (through {lr.last['samples_seen']} samples, 1-sigma "
                       f"{lr.last['sigma']})" for lr in self.learners.values() if lr.last) or "no set published yet"
         return f"{s}; {self.settings.label}, device {self.device or 'cpu'}" + (f"; {self.busy}" if self.busy else "")
+
+
+class ModelPublishers:
+    """The trainer's publishers on <base>/learn/model/<name>, one per model name, made on first use. ``watch``
+    follows the link to the router (a client's session reconnects by itself) and re-publishes the latest set of
+    each model when it comes back, so a set trained during a cut is not lost."""
+
+    def __init__(self, bus, log) -> None:
+        self.bus, self.log = bus, log
+        self.pubs: dict = {}
+        self.lock = threading.Lock()
+        self.up = self.connected()
+        self.losses = self.republished = 0
+
+    def publish(self, name: str, msg: dict) -> None:
+        with self.lock:
+            p = self.pubs.get(name)
+            if p is None:
+                p = self.pubs[name] = self.bus.publisher(self.bus.keys.learn_model(name))
+            p.put(msg)
+
+    def connected(self) -> bool:
+        return bool(self.bus.routers() or self.bus.peers())
+
+    def watch(self, run, poll_s: float, held) -> None:
+        """Until the service stops: check the link every poll_s [s]; held() is the number of samples received."""
+        while not run.wait(poll_s):
+            up = self.connected()
+            if up == self.up:
+                continue
+            self.up = up
+            if not up:
+                self.losses += 1
+                self.log.warning("link to the router lost; training goes on with the %s samples received", held())
+                continue
+            with self.lock:
+                for p in self.pubs.values():
+                    if p.latest is not None:
+                        p.put_raw(p.latest)
+                        self.republished += 1
+            self.log.info("link to the router restored; latest sets re-published (%s)",
+                          ", ".join(self.pubs) or "none yet")
+
+    def counters(self) -> dict:
+        return {"link_losses": self.losses, "republished": self.republished}
+
+
+def train_loop(run, node: TrainerNode) -> None:
+    """The training thread: fit and publish every due point until the service stops; each fit is a heartbeat (a
+    lockstep predictor waits on the trainer's progress, zennav.services.predictor)."""
+    while not run.stopping:
+        for t in node.wait_due():
+            if run.stopping:
+                break
+            node.train(t)
+            run.heartbeat()
