@@ -88,7 +88,7 @@ DVL_LAYOUT = "x"
 DVL_STD_MPS = 0.02  # README: Workhorse velocity 1-sigma [m/s]
 GNSS_STD_M = np.array([0.5, 0.5, 1.0])  # derived surface fixes, 1-sigma N/E/D [m] (SBAS/DGPS class)
 GNSS_VEL_STD_MPS = 0.05  # derived surface fix velocity 1-sigma [m/s] (GNSS Doppler class)
-MAX_SKEW_S = 1.5  # the estimate's search range (ansfl.MAX_OFFSET_S) [s]
+MIN_DEPTH_STD_M = 0.01  # the depth 1-sigma the filter is told at least (depth_std_m=0: a noiseless derived depth)
 
 
 def folder_of(n: int, root: Path) -> Path:
@@ -269,7 +269,9 @@ def load(
     truth = Truth(t_ns=t_gt, llh=llh, v_n=v_n, euler=euler,
                   source="Delph post-processed Phins solution (aided by the same DVL: not independent)")
     config = NavConfig(imu_noise=_imu_noise(), lever_arm_b=np.zeros(3), start_t_ns=t0, dvl_tilt=DVL_TILT,
-                       dvl_layout=DVL_LAYOUT, depth_surface_h_m=0.0)
+                       dvl_layout=DVL_LAYOUT, depth_surface_h_m=0.0, has_dvl=True, has_depth=True,
+                       dvl_beam_std_mps=DVL_STD_MPS, dvl_velocity_std_mps=DVL_STD_MPS,
+                       depth_std_m=max(depth_std_m, MIN_DEPTH_STD_M))
     notes = {
         "source": "ansfl/A-KIT (no license stated; cite Cohen & Klein, Eng. Appl. of AI 146, 110221, 2025): Snapir "
                   "AUV, iXblue Phins Subsea, Teledyne RDI Workhorse Navigator DVL",

@@ -17,8 +17,8 @@ Spec (the loader option ``-o anomalies=...``): comma-separated ``kind[:count[:ma
 ``outlier:10,bias:2:5:30,lost2o:1``; ``all`` is one event of every kind with the defaults. Events come in random
 order at random times inside [t_from_ns, end] (the spare samples split at random between them), never overlapping
 (at least one clean sample between two events), and touch random beams. Where an event changed the beams,
-``velocity_d`` is recomputed from the valid beams as a DVL does (least squares; invalid with fewer than three valid
-beams), so a loose body-velocity filter sees the same anomaly.
+``velocity_d`` is recomputed from the valid beams as a DVL does (least squares, zennav.nav.beams; invalid with fewer
+than three valid beams), so a loose body-velocity filter sees the same anomaly.
 """
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from zennav.nav.beams import velocity_from_beams
 from zennav.nav.types import NS, DvlData
 
 SIGMA_MPS = 0.02  # DVL beam 1-sigma [m/s] the default magnitudes are relative to (A-KIT README: Workhorse 0.02 m/s)
@@ -95,17 +96,6 @@ def parse_spec(text: str) -> list[AnomalySpec]:
     return out
 
 
-def velocity_from_beams(beams: np.ndarray, valid: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A DVL's own velocity solution: v_d (N, 3) [m/s] least squares of the valid beams (N, 4) with the beam
-    directions B (4, 3), and a (N,) flag; NaN and False where fewer than three beams are valid."""
-    v_d = np.full((len(beams), 3), np.nan)
-    ok = valid.sum(axis=1) >= 3
-    for k in np.flatnonzero(ok):
-        use = valid[k]
-        v_d[k] = np.linalg.lstsq(B[use], beams[k, use], rcond=None)[0]
-    return v_d, ok
-
-
 def _beams_of(kind: str, rng: np.random.Generator) -> tuple[int, ...]:
     first = int(rng.integers(4))
     if kind == "lost2p":
@@ -161,7 +151,9 @@ def inject(dvl: DvlData, spec, B: np.ndarray, seed: int = 0, t_from_ns: int | No
         k += length + 1
     velocity_d = None if dvl.velocity_d is None else dvl.velocity_d.copy()
     velocity_valid = None if dvl.velocity_valid is None else dvl.velocity_valid.copy()
-    if velocity_d is not None and velocity_valid is not None and touched.any():
-        v_d, ok = velocity_from_beams(beams[touched], valid[touched], B)
-        velocity_d[touched], velocity_valid[touched] = v_d, ok
+    if velocity_d is not None and velocity_valid is not None:
+        for k in np.flatnonzero(touched):  # a DVL's own solution needs three beams
+            ok = bool(valid[k].sum() >= 3)
+            velocity_d[k] = velocity_from_beams(beams[k], valid[k], B) if ok else np.nan
+            velocity_valid[k] = ok
     return DvlData(t_ns.copy(), beams, valid, velocity_d, velocity_valid), events
