@@ -2,6 +2,8 @@
 (zennav.datasets.dvl_anomalies). Skipped where ../shared/data has no A-KIT folder."""
 from __future__ import annotations
 
+import gzip
+
 import numpy as np
 import pytest
 
@@ -63,18 +65,22 @@ def test_skew_is_recovered_after_a_known_shift(tmp_path, t12):
     folder = ROOT / "Trajectory12"
     shifted = tmp_path / "Trajectory12"
     shifted.mkdir()
-    for name in ("DVL_trajectory12.csv", "GT_trajectory12.csv"):
-        (shifted / name).write_text((folder / name).read_text())
-    import gzip
+    (shifted / "GT_trajectory12.csv").write_text((folder / "GT_trajectory12.csv").read_text())
 
-    lines = gzip.open(folder / "IMU_trajectory12.csv.gz", "rt").read().splitlines()
-    out = [lines[0]] + [f"{float(t) - 0.5!r},{rest}" for t, rest in (ln.split(",", 1) for ln in lines[1:])]
+    def earlier(lines: list[str], by_s: float) -> str:
+        """The csv lines with every time column by_s earlier."""
+        rows = (ln.split(",", 1) for ln in lines[1:])
+        return "\n".join([lines[0]] + [f"{float(t) - by_s!r},{rest}" for t, rest in rows]) + "\n"
+
+    (shifted / "DVL_trajectory12.csv").write_text(earlier((folder / "DVL_trajectory12.csv").read_text().splitlines(),
+                                                          0.3))
     with gzip.open(shifted / "IMU_trajectory12.csv.gz", "wt") as f:
-        f.write("\n".join(out) + "\n")
+        f.write(earlier(gzip.open(folder / "IMU_trajectory12.csv.gz", "rt").read().splitlines(), 0.5))
     again = akit.load(shifted, gnss_s=0)
     assert abs(again.notes["skew_s"] - t12.notes["skew_s"] - 0.5) < 0.05, (again.notes["skew_s"], t12.notes["skew_s"])
-    given = akit.load(shifted, gnss_s=0, skew_s=0.25)
-    assert given.notes["skew_s"] == 0.25 and given.notes["skew"] == "given"
+    assert abs(again.notes["dvl_skew_s"] - t12.notes["dvl_skew_s"] - 0.3) < 0.05
+    given = akit.load(shifted, gnss_s=0, skew_s=0.25, dvl_skew_s=0)
+    assert given.notes["skew_s"] == 0.25 and given.notes["skew"] == "given" and given.notes["dvl_skew_s"] == 0.0
     with pytest.raises(DataError, match="skew_s"):
         akit.load(folder, skew_s="later")
 
@@ -94,6 +100,16 @@ def test_dvl_beams_depth_and_gnss_are_derived_as_stated(t12):
     assert len(with_gnss.gnss) == 30 and with_gnss.gnss.t_ns[-1] - with_gnss.initial.t_ns <= 30 * NS
     assert "DERIVED" in with_gnss.notes["gnss"] and "DERIVED" in with_gnss.notes["dvl"]
     assert "DERIVED" in with_gnss.notes["depth"]
+
+
+@needs_data
+def test_dvl_lever_arm_explains_the_turns():
+    with_lever = registry.load_dataset("akit:Trajectory2", gnss_s=0)
+    without = registry.load_dataset("akit:Trajectory2", gnss_s=0, dvl_lever=False)
+    assert with_lever.config.dvl_lever_b == tuple(akit.DVL_LEVER_B) and without.config.dvl_lever_b == (0.0, 0.0, 0.0)
+    # DVL vs reference body velocity, RMS per axis [m/s]: 0.006 with the 1.9 m lever arm, 0.065 without
+    assert with_lever.notes["dvl_skew_fit_rms_mps"] < 0.2 * without.notes["dvl_skew_fit_rms_mps"]
+    assert 1.3 < with_lever.notes["dvl_skew_s"] < 1.7  # the module doc's +1.50 s
 
 
 def _clean_dvl(n: int = 400) -> tuple[DvlData, np.ndarray]:

@@ -28,6 +28,20 @@ yaw-rate-only cross-correlation has nothing to lock on. The Earth and transport 
 in the IMU rates: a slowly varying term that does not move the minimum. Convention: t_GT = t_IMU + skew_s; the IMU
 times are shifted onto the GT/DVL time base. A number (``skew_s=0.8``) forces it.
 
+DVL skew and lever arm: the README takes the DVL and the GT to share their time grid; they do not. The DVL's body
+velocity v_d(t) matches the reference's body velocity C_bn v_n, plus omega_nb_b x l_b for a DVL at l_b from the IMU,
+best at t + dvl_skew with dvl_skew +1.44 to +1.52 s on T1-T4, T7-T10, T13 and +0.50 to +0.60 s on T5, T6, T11, T12
+(the segments whose IMU skew is near 0): the 1 Hz rows are paired with a lag of half a ping plus 0 or 1 sample.
+Fitted jointly (least squares, per trajectory, lag on a 50 ms grid) the lever arm is the same on every segment:
+median (-1.88, -0.04, +0.21) m, spread 0.12 / 0.02 / 0.08 m (1-sigma over the 13), i.e. the DVL sits 1.9 m aft of
+the IMU (DVL_LEVER_B: a vehicle constant, NavConfig.dvl_lever_b; ``dvl_lever=false`` puts 0). With both, the
+DVL-vs-reference residual falls from 0.05-0.2 m/s RMS (y axis, turning segments) to 0.005-0.014 m/s on 11
+segments (T9 0.035, T11 0.047). The loader estimates the DVL skew per segment (``dvl_skew_s="auto"``,
+``estimate_dvl_skew``, with DVL_LEVER_B; a number forces it) and shifts the DVL times onto the GT base. What
+remains (not calibrated: the filter's beam-bias and scale states meet it): the DVL frame is taken as the body frame
+although the same fit gives a mounting of about 0.07 deg pitch and 0.1-0.3 deg yaw and a scale -0.4..+0.8 %,
+varying between segments.
+
 Times: the files carry no absolute time; t_ns = ns since the first GT row (GT time 0).
 
 GT (``GT_trajectoryN.csv``, 1 Hz: longitude, latitude [rad], altitude [m, negative under water], v_N/E/D [m/s],
@@ -40,7 +54,8 @@ Derived sensors (none of these is a recording; notes say so too):
   velocity_d. Layout "x" (beams at 45, 135, 225, 315 deg from forward): the Haifa group's DVL papers on this vehicle
   (BeamsNet, A-KIT) model the beams at psi_i = 45 + 90 (i - 1) deg; the mounting is not documented, and with beams
   derived from a 3-D velocity the choice changes no information, only which beam pairs are "parallel". DVL frame =
-  body frame (mounting and lever arm unknown: zero).
+  body frame (the mounting is not documented: zero), lever arm DVL_LEVER_B (estimated, above). The filter is told
+  the README's 0.02 m/s per beam (NavConfig dvl_beam_std_mps, dvl_velocity_std_mps).
 - **Depth, derived** from the GT altitude: depth = -alt + a constant bias (depth_bias_m, default 0) + seeded white
   noise (depth_std_m, default 0.05 m: a 0.1 % full-scale pressure sensor of 50 m) at the GT rate (1 Hz); the
   water surface is height 0 (NavConfig.depth_surface_h_m).
@@ -57,11 +72,11 @@ from pathlib import Path
 import numpy as np
 
 from zennav.datasets import dvl_anomalies
-from zennav.datasets.ansfl import estimate_time_offset
+from zennav.datasets.ansfl import estimate_time_offset, gt_body_rates
 from zennav.datasets.errors import DataError, read_table, read_text
 from zennav.nav import earth
 from zennav.nav.beams import beams_from_velocity, janus_directions
-from zennav.nav.rotation import euler_to_quat, quat_multiply, quat_to_euler, wrap_angle
+from zennav.nav.rotation import euler_to_dcm, euler_to_quat, quat_multiply, quat_to_euler, wrap_angle
 from zennav.nav.types import (
     NS,
     Dataset,
@@ -88,6 +103,8 @@ DVL_LAYOUT = "x"
 DVL_STD_MPS = 0.02  # README: Workhorse velocity 1-sigma [m/s]
 GNSS_STD_M = np.array([0.5, 0.5, 1.0])  # derived surface fixes, 1-sigma N/E/D [m] (SBAS/DGPS class)
 GNSS_VEL_STD_MPS = 0.05  # derived surface fix velocity 1-sigma [m/s] (GNSS Doppler class)
+DVL_LEVER_B = np.array([-1.88, -0.04, 0.21])  # IMU -> DVL, body FRD [m]: estimated, a vehicle constant (module doc)
+DVL_MAX_SKEW_S = 2.5  # search range of the DVL skew [s]
 MIN_DEPTH_STD_M = 0.01  # the depth 1-sigma the filter is told at least (depth_std_m=0: a noiseless derived depth)
 
 
@@ -153,15 +170,42 @@ def gyro_attitude(imu: ImuData, t0_ns: int, euler0: np.ndarray, lat: float) -> t
     return t_ns, quat_to_euler(quat_multiply(earth_q, quat_multiply(q0, prod)).T)
 
 
-def _skew(option, t_imu, omega_b, t_gt, euler_gt, path) -> tuple[float, float | None]:
-    """(skew [s], fit residual [rad/s] or None when given) from the skew_s option (module doc)."""
+def estimate_dvl_skew(t_gt_ns, v_n, euler, t_dvl_ns, v_d, lever_b) -> tuple[float, float]:
+    """DVL skew [s] (t_GT = t_DVL + skew) that best fits the DVL velocities v_d (N, 3) [m/s, body] to the reference's
+    C_bn v_n + omega_nb_b x lever_b at the shifted times (GT rows (K,) v_n [m/s], euler [rad]; rates between
+    consecutive GT attitudes), each axis's mean residual removed; 20 ms grid over +-DVL_MAX_SKEW_S and a parabolic
+    vertex. Returns (skew, residual RMS per axis [m/s]). ValueError when the DVL covers too little of the GT."""
+    t_s, td = np.asarray(t_gt_ns) / NS, np.asarray(t_dvl_ns) / NS
+    v_b = np.einsum("kji,kj->ki", euler_to_dcm(euler), v_n)
+    t_mid, omega_nb_b = gt_body_rates(np.asarray(t_gt_ns), euler)
+    use = (td > t_s[0] + DVL_MAX_SKEW_S + 1.0) & (td < t_s[-1] - DVL_MAX_SKEW_S - 1.0)
+    if np.count_nonzero(use) < 10:
+        raise ValueError("DVL and GT overlap too little to estimate the DVL skew (pass dvl_skew_s)")
+
+    def cost(tau: float) -> float:
+        q = td[use] + tau
+        predicted = _interp(q, t_s, v_b) + np.cross(_interp(q, t_mid, omega_nb_b), lever_b)
+        r = v_d[use] - predicted
+        return float(np.mean((r - r.mean(axis=0)) ** 2))
+
+    grid = np.arange(-DVL_MAX_SKEW_S, DVL_MAX_SKEW_S + 1e-9, 0.02)
+    c = np.array([cost(tau) for tau in grid])
+    k = int(np.clip(np.argmin(c), 1, len(grid) - 2))
+    den = c[k - 1] - 2.0 * c[k] + c[k + 1]
+    step = float(np.clip(0.5 * (c[k - 1] - c[k + 1]) / den, -1.0, 1.0)) if den > 0 else 0.0
+    tau = float(grid[k] + step * 0.02)
+    return tau, math.sqrt(cost(tau))
+
+
+def _skew(option, name, estimate, path) -> tuple[float, float | None]:
+    """(skew [s], fit residual or None when given) from a skew option "auto" (estimate()) or a number."""
     if option == "auto":
         try:
-            return estimate_time_offset(t_imu, omega_b, t_gt, euler_gt)
+            return estimate()
         except ValueError as exc:
             raise DataError(path, str(exc)) from None
     if isinstance(option, bool) or not isinstance(option, int | float) or not math.isfinite(option):
-        raise DataError(path, f"skew_s must be 'auto' or a number of seconds, got {option!r}")
+        raise DataError(path, f"{name} must be 'auto' or a number of seconds, got {option!r}")
     return float(option), None
 
 
@@ -172,6 +216,8 @@ def _interp(t_query, t_ns, values) -> np.ndarray:
 def load(
     folder,
     skew_s="auto",
+    dvl_skew_s="auto",
+    dvl_lever: bool = True,
     gnss_s: float = 60.0,
     seed: int = 0,
     depth_std_m: float = 0.05,
@@ -179,7 +225,8 @@ def load(
     anomalies: str | None = None,
     anomalies_from_s: float = 0.0,
 ) -> Dataset:
-    """One TrajectoryN folder -> Dataset (module doc). skew_s: "auto" or t_GT - t_IMU [s]; gnss_s: derived GNSS
+    """One TrajectoryN folder -> Dataset (module doc). skew_s: "auto" or t_GT - t_IMU [s]; dvl_skew_s: "auto" or
+    t_GT - t_DVL [s]; dvl_lever: DVL_LEVER_B (True) or 0 as the DVL lever arm; gnss_s: derived GNSS
     fixes during this many seconds from the start (0: none); seed: of every derived noise and of the anomalies;
     depth_std_m / depth_bias_m: derived depth white-noise 1-sigma and constant bias [m]; anomalies: a
     zennav.datasets.dvl_anomalies spec, injected at or after anomalies_from_s [s] from the start."""
@@ -208,7 +255,7 @@ def load(
     v_n = gt[:, 4:7].copy()
     euler = np.column_stack([gt[:, 7], gt[:, 8], wrap_angle(gt[:, 9])])
 
-    skew, residual = _skew(skew_s, t_imu, omega_b, t_gt, euler, imu_path)
+    skew, residual = _skew(skew_s, "skew_s", lambda: estimate_time_offset(t_imu, omega_b, t_gt, euler), imu_path)
     t_imu = t_imu + round(skew * NS)
     # start at the IMU sample nearest the first GT row inside the shifted IMU span; end at the last GT row
     row0 = int(np.searchsorted(t_gt, t_imu[0], side="left"))
@@ -249,8 +296,13 @@ def load(
     )
 
     B = janus_directions(DVL_TILT, DVL_LAYOUT)
-    dvl_rows = t_dvl >= t0
-    v_d = dvl_table.data[dvl_rows, 1:4]
+    lever_b = DVL_LEVER_B.copy() if dvl_lever else np.zeros(3)
+    v_d_all = dvl_table.data[:, 1:4]
+    dvl_skew, dvl_residual = _skew(
+        dvl_skew_s, "dvl_skew_s", lambda: estimate_dvl_skew(t_gt, v_n, euler, t_dvl, v_d_all, lever_b), dvl_path)
+    t_dvl = t_dvl + round(dvl_skew * NS)
+    dvl_rows = (t_dvl >= t0) & (t_dvl <= imu.t_ns[-1])
+    v_d = v_d_all[dvl_rows]
     beams = beams_from_velocity(v_d, B)
     dvl = DvlData(t_dvl[dvl_rows], beams, np.ones(beams.shape, dtype=bool), v_d.copy(),
                   np.ones(len(v_d), dtype=bool))
@@ -269,7 +321,8 @@ def load(
     truth = Truth(t_ns=t_gt, llh=llh, v_n=v_n, euler=euler,
                   source="Delph post-processed Phins solution (aided by the same DVL: not independent)")
     config = NavConfig(imu_noise=_imu_noise(), lever_arm_b=np.zeros(3), start_t_ns=t0, dvl_tilt=DVL_TILT,
-                       dvl_layout=DVL_LAYOUT, depth_surface_h_m=0.0, has_dvl=True, has_depth=True,
+                       dvl_layout=DVL_LAYOUT, dvl_lever_b=tuple(lever_b.tolist()), depth_surface_h_m=0.0,
+                       has_dvl=True, has_depth=True,
                        dvl_beam_std_mps=DVL_STD_MPS, dvl_velocity_std_mps=DVL_STD_MPS,
                        depth_std_m=max(depth_std_m, MIN_DEPTH_STD_M))
     notes = {
@@ -284,8 +337,14 @@ def load(
         "skew": "estimated from the GT attitude rates (t_GT = t_IMU + skew_s)" if residual is not None else "given",
         "skew_fit_rms_dps": None if residual is None else math.degrees(residual),
         "dvl": f"DERIVED beams: Janus tilt {math.degrees(DVL_TILT):g} deg, layout {DVL_LAYOUT!r}, from the recorded "
-               "body-frame DVL velocity (also given as velocity_d); DVL frame = body frame, lever arm 0 (unknown)",
+               "body-frame DVL velocity (also given as velocity_d); DVL frame = body frame, lever arm "
+               f"{lever_b.tolist()} m ({'estimated vehicle constant' if dvl_lever else 'none'})",
         "dvl_std_mps": DVL_STD_MPS,
+        "dvl_skew_s": dvl_skew,
+        "dvl_skew": "estimated from the GT body velocity (t_GT = t_DVL + dvl_skew_s)" if dvl_residual is not None
+                    else "given",
+        "dvl_skew_fit_rms_mps": dvl_residual,
+        "dvl_lever_b_m": lever_b.tolist(),
         "depth": f"DERIVED from the GT altitude: -alt + {depth_bias_m:g} m bias + N(0, {depth_std_m:g} m), 1 Hz",
         "gnss": (f"DERIVED from the GT, first {gnss_s:g} s only ('at the surface'): {len(gnss)} fixes, 1-sigma N/E/D "
                  f"{GNSS_STD_M.tolist()} m and {GNSS_VEL_STD_MPS} m/s, seeded noise") if len(gnss)
