@@ -189,7 +189,7 @@ def estimate_dvl_skew(t_gt_ns, v_n, euler, t_dvl_ns, v_d, lever_b) -> tuple[floa
         return float(np.mean((r - r.mean(axis=0)) ** 2))
 
     grid = np.arange(-DVL_MAX_SKEW_S, DVL_MAX_SKEW_S + 1e-9, 0.02)
-    c = np.array([cost(tau) for tau in grid])
+    c = np.array([cost(float(tau)) for tau in grid])
     k = int(np.clip(np.argmin(c), 1, len(grid) - 2))
     den = c[k - 1] - 2.0 * c[k] + c[k + 1]
     step = float(np.clip(0.5 * (c[k - 1] - c[k + 1]) / den, -1.0, 1.0)) if den > 0 else 0.0
