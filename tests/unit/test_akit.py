@@ -45,7 +45,7 @@ def test_y_flip_keeps_gyro_attitude_on_the_reference(t12):
     flipped = _gyro_attitude_error_deg(t12, t12.imu)
     raw = ImuData(t12.imu.t_ns, t12.imu.dtheta * [1.0, -1.0, 1.0], t12.imu.dvel * [1.0, -1.0, 1.0])
     unflipped = _gyro_attitude_error_deg(t12, raw)
-    assert np.all(flipped < 0.6), flipped  # README: 0.44/0.26/0.10 deg over 400 s with the flip
+    assert np.all(flipped < 0.1), flipped  # 0.01 deg (README, file times, no skew: 0.44/0.26/0.10 deg)
     assert unflipped.max() > 3.0, unflipped  # README: 8.3 deg in pitch without it
     # the accelerometer agrees: roll from the specific force averaged over each GT interval, atan2(-f_y, -f_z),
     # follows the GT roll (README: r = -0.95 without the flip)
@@ -66,19 +66,16 @@ def test_skew_is_recovered_after_a_known_shift(tmp_path, t12):
     shifted = tmp_path / "Trajectory12"
     shifted.mkdir()
     (shifted / "GT_trajectory12.csv").write_text((folder / "GT_trajectory12.csv").read_text())
-
-    def earlier(lines: list[str], by_s: float) -> str:
-        """The csv lines with every time column by_s earlier."""
-        rows = (ln.split(",", 1) for ln in lines[1:])
-        return "\n".join([lines[0]] + [f"{float(t) - by_s!r},{rest}" for t, rest in rows]) + "\n"
-
-    (shifted / "DVL_trajectory12.csv").write_text(earlier((folder / "DVL_trajectory12.csv").read_text().splitlines(),
-                                                          0.3))
+    # the rows are retimed at 100 Hz / 1 Hz: dropping the first 50 IMU rows (0.5 s) and the first DVL row (1 s)
+    # moves what each row measures that much later
+    dvl_lines = (folder / "DVL_trajectory12.csv").read_text().splitlines()
+    (shifted / "DVL_trajectory12.csv").write_text("\n".join(dvl_lines[:1] + dvl_lines[2:]) + "\n")
+    imu_lines = gzip.open(folder / "IMU_trajectory12.csv.gz", "rt").read().splitlines()
     with gzip.open(shifted / "IMU_trajectory12.csv.gz", "wt") as f:
-        f.write(earlier(gzip.open(folder / "IMU_trajectory12.csv.gz", "rt").read().splitlines(), 0.5))
+        f.write("\n".join(imu_lines[:1] + imu_lines[51:]) + "\n")
     again = akit.load(shifted, gnss_s=0)
     assert abs(again.notes["skew_s"] - t12.notes["skew_s"] - 0.5) < 0.05, (again.notes["skew_s"], t12.notes["skew_s"])
-    assert abs(again.notes["dvl_skew_s"] - t12.notes["dvl_skew_s"] - 0.3) < 0.05
+    assert abs(again.notes["dvl_skew_s"] - t12.notes["dvl_skew_s"] - 1.0) < 0.05
     given = akit.load(shifted, gnss_s=0, skew_s=0.25, dvl_skew_s=0)
     assert given.notes["skew_s"] == 0.25 and given.notes["skew"] == "given" and given.notes["dvl_skew_s"] == 0.0
     with pytest.raises(DataError, match="skew_s"):
@@ -110,6 +107,15 @@ def test_dvl_lever_arm_explains_the_turns():
     # DVL vs reference body velocity, RMS per axis [m/s]: 0.006 with the 1.9 m lever arm, 0.065 without
     assert with_lever.notes["dvl_skew_fit_rms_mps"] < 0.2 * without.notes["dvl_skew_fit_rms_mps"]
     assert 1.3 < with_lever.notes["dvl_skew_s"] < 1.7  # the module doc's +1.50 s
+
+
+@needs_data
+def test_retiming_at_the_stated_rates_keeps_the_gyros_on_the_reference():
+    retimed = registry.load_dataset("akit:Trajectory2", gnss_s=0)
+    file_times = registry.load_dataset("akit:Trajectory2", gnss_s=0, retime=False)
+    assert np.all(np.diff(retimed.truth.t_ns) == NS) and np.all(np.diff(retimed.imu.t_ns) == NS // 100)
+    good, bad = (_gyro_attitude_error_deg(ds, ds.imu) for ds in (retimed, file_times))
+    assert good.max() < 0.15 and bad[2] > 1.0, (good, bad)  # max yaw error over 400 s: 0.07 deg; 6.5 deg
 
 
 def _clean_dvl(n: int = 400) -> tuple[DvlData, np.ndarray]:

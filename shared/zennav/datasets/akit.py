@@ -19,21 +19,30 @@ IMU (``IMU_trajectoryN.csv.gz``, 100 Hz, time = linspace(0, 400, 40000) [s], ACC
   unknown; Gauss-Markov 1 h.
 - IMU rates -> increments by the trapezoid rule (ImuData.from_rates).
 
-Skew: the README reports IMU-vs-GT lags of +0.7 to +0.95 s on 9 segments and 0 to 0.2 s on the others. The loader
-estimates it per segment (``skew_s="auto"``, default) with zennav.datasets.ansfl.estimate_time_offset: least
-squares of the IMU body rates, averaged over each 1 s GT interval, against the body rates between consecutive GT
-attitudes, over shifts of +-1.5 s (20 ms grid, then 2 ms and a parabolic vertex). All three axes take part, so
-the straight segments (T12: 0.01 rad of yaw change) are fitted on their roll/pitch motion from the waves, where a
-yaw-rate-only cross-correlation has nothing to lock on. The Earth and transport rates (about 7e-5 rad/s) are left
-in the IMU rates: a slowly varying term that does not move the minimum. Convention: t_GT = t_IMU + skew_s; the IMU
-times are shifted onto the GT/DVL time base. A number (``skew_s=0.8``) forces it.
+Time base (``retime=True``, default): the files' time columns are linspace(0, 400, N), which stamps the 400 rows of
+1 Hz GT and DVL 1.0025 s apart (and the 40000 IMU rows 10.0003 ms apart): against the IMU the GT/DVL time runs
+0.25 % fast (400/399). Evidence: the IMU-vs-GT skew estimated (below) on 50 s windows drifts by +0.12 s per window
+with the file times on every segment (T2 +0.53 ... +1.38 s, T5 -0.44 ... +0.39 s, T12 -0.41 ... +0.43 s), that is
+the README's "lag of 0.7-0.95 s" is this drift's mean; with row k at k / 1 Hz (GT, DVL) and k / 100 Hz (IMU), the
+README's rates, it is constant within 0.01 s (T2 +0.45, T5 -0.50, T12 -0.47 s) and the rate-fit residual falls
+(T12 0.13 -> 0.004 deg/s, T2 -> 0.019 deg/s). The loader retimes the rows so; ``retime=false`` keeps the columns.
+
+Skew: on the retimed base the IMU-vs-GT skew is +0.41 to +0.46 s (T1-T4, T7-T10, T13) or -0.43 to -0.50 s (T5, T6,
+T11, T12): about half a GT interval either way. The loader estimates it per segment (``skew_s="auto"``, default)
+with zennav.datasets.ansfl.estimate_time_offset: least squares of the IMU body rates, averaged over each 1 s GT
+interval, against the body rates between consecutive GT attitudes, over shifts of +-1.5 s (20 ms grid, then 2 ms and
+a parabolic vertex; the range is 3x the skews found). All three axes take part, so the straight segments (T12:
+0.01 rad of yaw change) are fitted on their roll/pitch motion from the waves, where a yaw-rate-only
+cross-correlation has nothing to lock on. The Earth and transport rates (about 7e-5 rad/s) are left in the IMU
+rates: a slowly varying term that does not move the minimum. Convention: t_GT = t_IMU + skew_s; the IMU times are
+shifted onto the GT time base. A number (``skew_s=0.4``) forces it.
 
 DVL skew and lever arm: the README takes the DVL and the GT to share their time grid; they do not. The DVL's body
 velocity v_d(t) matches the reference's body velocity C_bn v_n, plus omega_nb_b x l_b for a DVL at l_b from the IMU,
-best at t + dvl_skew with dvl_skew +1.44 to +1.52 s on T1-T4, T7-T10, T13 and +0.50 to +0.60 s on T5, T6, T11, T12
-(the segments whose IMU skew is near 0): the 1 Hz rows are paired with a lag of half a ping plus 0 or 1 sample.
+best at t + dvl_skew with dvl_skew +1.40 to +1.50 s on T1-T4, T7-T10, T13 and +0.50 to +0.60 s on T5, T6, T11, T12:
+the DVL lags the IMU by 1.0-1.05 s on every segment, and the GT sits half a sample either side of both.
 Fitted jointly (least squares, per trajectory, lag on a 50 ms grid) the lever arm is the same on every segment:
-median (-1.88, -0.04, +0.21) m, spread 0.12 / 0.02 / 0.08 m (1-sigma over the 13), i.e. the DVL sits 1.9 m aft of
+median (-1.87, -0.04, +0.22) m, spread 0.12 / 0.03 / 0.08 m (1-sigma over the 13), i.e. the DVL sits 1.9 m aft of
 the IMU (DVL_LEVER_B: a vehicle constant, NavConfig.dvl_lever_b; ``dvl_lever=false`` puts 0). With both, the
 DVL-vs-reference residual falls from 0.05-0.2 m/s RMS (y axis, turning segments) to 0.005-0.014 m/s on 11
 segments (T9 0.035, T11 0.047). The loader estimates the DVL skew per segment (``dvl_skew_s="auto"``,
@@ -103,7 +112,9 @@ DVL_LAYOUT = "x"
 DVL_STD_MPS = 0.02  # README: Workhorse velocity 1-sigma [m/s]
 GNSS_STD_M = np.array([0.5, 0.5, 1.0])  # derived surface fixes, 1-sigma N/E/D [m] (SBAS/DGPS class)
 GNSS_VEL_STD_MPS = 0.05  # derived surface fix velocity 1-sigma [m/s] (GNSS Doppler class)
-DVL_LEVER_B = np.array([-1.88, -0.04, 0.21])  # IMU -> DVL, body FRD [m]: estimated, a vehicle constant (module doc)
+GT_RATE_HZ = 1.0  # README: GT and DVL at 1 Hz (retime)
+IMU_RATE_HZ = 100.0  # README: INS at 100 Hz (retime)
+DVL_LEVER_B = np.array([-1.87, -0.04, 0.22])  # IMU -> DVL, body FRD [m]: estimated, a vehicle constant (module doc)
 DVL_MAX_SKEW_S = 2.5  # search range of the DVL skew [s]
 MIN_DEPTH_STD_M = 0.01  # the depth 1-sigma the filter is told at least (depth_std_m=0: a noiseless derived depth)
 
@@ -124,12 +135,20 @@ def _table(path: Path, expected: tuple[str, ...]):
     return table
 
 
-def _times(table, what: str) -> np.ndarray:
+def _times(table, what: str, rate_hz: float | None) -> np.ndarray:
+    """The rows' times [ns]: the file's time column, or with rate_hz row k at k / rate_hz (the module doc's
+    retiming; the column must then be evenly spaced, as the files' linspace is)."""
     t_ns = np.round(table.data[:, 0] * NS).astype(np.int64)
     table.require_increasing(t_ns, f"{what} time")
     if len(t_ns) < 10:
         raise DataError(table.path, f"{len(t_ns)} {what} rows; at least 10 are needed")
-    return t_ns
+    if rate_hz is None:
+        return t_ns
+    dt = np.diff(table.data[:, 0])
+    uneven = np.flatnonzero(np.abs(dt - dt.mean()) > 1e-6 * dt.mean())
+    if uneven.size:
+        raise table.error(int(uneven[0]) + 1, f"{what} times are not evenly spaced: cannot retime (retime=false)")
+    return np.round(np.arange(len(t_ns)) * (NS / rate_hz)).astype(np.int64)
 
 
 def _imu_noise() -> ImuNoise:
@@ -215,6 +234,7 @@ def _interp(t_query, t_ns, values) -> np.ndarray:
 
 def load(
     folder,
+    retime: bool = True,
     skew_s="auto",
     dvl_skew_s="auto",
     dvl_lever: bool = True,
@@ -225,7 +245,8 @@ def load(
     anomalies: str | None = None,
     anomalies_from_s: float = 0.0,
 ) -> Dataset:
-    """One TrajectoryN folder -> Dataset (module doc). skew_s: "auto" or t_GT - t_IMU [s]; dvl_skew_s: "auto" or
+    """One TrajectoryN folder -> Dataset (module doc). retime: rows at the README's 1 Hz / 100 Hz (True) or the
+    files' time columns; skew_s: "auto" or t_GT - t_IMU [s]; dvl_skew_s: "auto" or
     t_GT - t_DVL [s]; dvl_lever: DVL_LEVER_B (True) or 0 as the DVL lever arm; gnss_s: derived GNSS
     fixes during this many seconds from the start (0: none); seed: of every derived noise and of the anomalies;
     depth_std_m / depth_bias_m: derived depth white-noise 1-sigma and constant bias [m]; anomalies: a
@@ -243,11 +264,13 @@ def load(
         raise DataError(folder, f"depth_bias_m must be a number, got {depth_bias_m!r}")
 
     gt_table = _table(gt_path, GT_COLUMNS)
-    t_gt, gt = _times(gt_table, "GT"), gt_table.data
+    if not isinstance(retime, bool):
+        raise DataError(folder, f"retime must be true or false, got {retime!r}")
+    t_gt, gt = _times(gt_table, "GT", GT_RATE_HZ if retime else None), gt_table.data
     dvl_table = _table(dvl_path, DVL_COLUMNS)
-    t_dvl = _times(dvl_table, "DVL")
+    t_dvl = _times(dvl_table, "DVL", GT_RATE_HZ if retime else None)
     imu_table = _table(imu_path, IMU_COLUMNS)
-    t_imu = _times(imu_table, "IMU")
+    t_imu = _times(imu_table, "IMU", IMU_RATE_HZ if retime else None)
     f_b = imu_table.data[:, 1:4] @ C_B_S.T
     omega_b = imu_table.data[:, 4:7] @ C_B_S.T
 
@@ -329,7 +352,8 @@ def load(
         "source": "ansfl/A-KIT (no license stated; cite Cohen & Klein, Eng. Appl. of AI 146, 110221, 2025): Snapir "
                   "AUV, iXblue Phins Subsea, Teledyne RDI Workhorse Navigator DVL",
         "trajectory": folder.name,
-        "time": "ns since the first GT row (no absolute time in the files)",
+        "time": "ns since the first GT row (no absolute time in the files); "
+                + ("rows retimed at 1 Hz (GT, DVL) and 100 Hz (IMU)" if retime else "the files' time columns"),
         "imu_axes": "ACC Y and GYRO Y negated (the README's y flip of the pre-fix IMU files)",
         "imu_rounding": f"gyro {Q_GYRO} rad/s, accel {Q_ACCEL} m/s^2: gyro ARW from the rounding (q^2/12 per sample)",
         "imu_increments": "trapezoid rule on rates: dtheta_k = (w_{k-1} + w_k) / 2 * dt_k",
