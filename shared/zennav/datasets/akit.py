@@ -37,19 +37,26 @@ cross-correlation has nothing to lock on. The Earth and transport rates (about 7
 rates: a slowly varying term that does not move the minimum. Convention: t_GT = t_IMU + skew_s; the IMU times are
 shifted onto the GT time base. A number (``skew_s=0.4``) forces it.
 
-DVL skew and lever arm: the README takes the DVL and the GT to share their time grid; they do not. The DVL's body
-velocity v_d(t) matches the reference's body velocity C_bn v_n, plus omega_nb_b x l_b for a DVL at l_b from the IMU,
-best at t + dvl_skew with dvl_skew +1.40 to +1.50 s on T1-T4, T7-T10, T13 and +0.50 to +0.60 s on T5, T6, T11, T12:
-the DVL lags the IMU by 1.0-1.05 s on every segment, and the GT sits half a sample either side of both.
-Fitted jointly (least squares, per trajectory, lag on a 50 ms grid) the lever arm is the same on every segment:
-median (-1.87, -0.04, +0.22) m, spread 0.12 / 0.03 / 0.08 m (1-sigma over the 13), i.e. the DVL sits 1.9 m aft of
-the IMU (DVL_LEVER_B: a vehicle constant, NavConfig.dvl_lever_b; ``dvl_lever=false`` puts 0). With both, the
-DVL-vs-reference residual falls from 0.05-0.2 m/s RMS (y axis, turning segments) to 0.005-0.014 m/s on 11
-segments (T9 0.035, T11 0.047). The loader estimates the DVL skew per segment (``dvl_skew_s="auto"``,
-``estimate_dvl_skew``, with DVL_LEVER_B; a number forces it) and shifts the DVL times onto the GT base. What
-remains (not calibrated: the filter's beam-bias and scale states meet it): the DVL frame is taken as the body frame
-although the same fit gives a mounting of about 0.07 deg pitch and 0.1-0.3 deg yaw and a scale -0.4..+0.8 %,
-varying between segments.
+Reference point and DVL skew: the README takes the DVL and the GT to share their time grid and place; they do not.
+The DVL's body velocity v_d(t) matches the reference's body velocity C_bn v_n plus omega_nb_b x l_b, the velocity
+of a point at l_b from the reference point, best at t + dvl_skew with dvl_skew +1.40 to +1.50 s on T1-T4, T7-T10,
+T13 and +0.50 to +0.60 s on T5, T6, T11, T12: the DVL lags the IMU by 1.0-1.05 s on every segment, and the GT sits
+half a sample either side of both. Fitted jointly (least squares per trajectory, lag on a 50 ms grid) l_b is the
+same on every segment: median (-1.87, -0.04, +0.22) m, spread 0.12 / 0.03 / 0.08 m (1-sigma over the 13). The
+IMU is there too, not at the reference point: a filter given the reference's velocity at the IMU and the DVL there
+with that lever arm rejects the DVL in the turns (T2: 36 of 398 samples, innovations 0.1-0.15 m/s per beam at
+11 deg/s, the INS velocity following the DVL point), with both at that point it fuses all. So the Phins/Delph
+output point is 1.9 m forward of the IMU and the DVL velocities are given at (or transformed to) the IMU:
+IMU_FROM_REF_B, a vehicle constant. The loader moves the reference to the IMU (``ref_lever=true``, default):
+    llh_IMU = llh + C_nb l_b (as NED), v_n,IMU = v_n + C_nb (omega_nb_b x l_b),  l_b = IMU_FROM_REF_B,
+with omega_nb_b from consecutive GT attitudes, for the truth, the initial state, the derived GNSS and depth;
+``ref_lever=false`` uses the reference as it is. The DVL's lever arm from the IMU is then 0. With the lever and the
+skew the DVL-vs-reference residual falls from 0.05-0.2 m/s RMS (y axis, turning segments) to 0.005-0.014 m/s on
+11 segments (T9 0.035, T11 0.047). The loader estimates the DVL skew per segment (``dvl_skew_s="auto"``,
+``estimate_dvl_skew``; a number forces it) and shifts the DVL times onto the GT base. What remains (not
+calibrated: the filter's beam-bias and scale states meet it): the DVL frame is taken as the body frame although
+the same fit gives a mounting of about 0.07 deg pitch and 0.1-0.3 deg yaw and a scale -0.4..+0.8 %, varying
+between segments.
 
 Times: the files carry no absolute time; t_ns = ns since the first GT row (GT time 0).
 
@@ -63,7 +70,7 @@ Derived sensors (none of these is a recording; notes say so too):
   velocity_d. Layout "x" (beams at 45, 135, 225, 315 deg from forward): the Haifa group's DVL papers on this vehicle
   (BeamsNet, A-KIT) model the beams at psi_i = 45 + 90 (i - 1) deg; the mounting is not documented, and with beams
   derived from a 3-D velocity the choice changes no information, only which beam pairs are "parallel". DVL frame =
-  body frame (the mounting is not documented: zero), lever arm DVL_LEVER_B (estimated, above). The filter is told
+  body frame (the mounting is not documented: zero), at the IMU (lever arm 0; above). The filter is told
   the README's 0.02 m/s per beam (NavConfig dvl_beam_std_mps, dvl_velocity_std_mps).
 - **Depth, derived** from the GT altitude: depth = -alt + a constant bias (depth_bias_m, default 0) + seeded white
   noise (depth_std_m, default 0.05 m: a 0.1 % full-scale pressure sensor of 50 m) at the GT rate (1 Hz); the
@@ -114,7 +121,7 @@ GNSS_STD_M = np.array([0.5, 0.5, 1.0])  # derived surface fixes, 1-sigma N/E/D [
 GNSS_VEL_STD_MPS = 0.05  # derived surface fix velocity 1-sigma [m/s] (GNSS Doppler class)
 GT_RATE_HZ = 1.0  # README: GT and DVL at 1 Hz (retime)
 IMU_RATE_HZ = 100.0  # README: INS at 100 Hz (retime)
-DVL_LEVER_B = np.array([-1.87, -0.04, 0.22])  # IMU -> DVL, body FRD [m]: estimated, a vehicle constant (module doc)
+IMU_FROM_REF_B = np.array([-1.87, -0.04, 0.22])  # reference point -> IMU, body FRD [m]: estimated (module doc)
 DVL_MAX_SKEW_S = 2.5  # search range of the DVL skew [s]
 MIN_DEPTH_STD_M = 0.01  # the depth 1-sigma the filter is told at least (depth_std_m=0: a noiseless derived depth)
 
@@ -216,6 +223,18 @@ def estimate_dvl_skew(t_gt_ns, v_n, euler, t_dvl_ns, v_d, lever_b) -> tuple[floa
     return tau, math.sqrt(cost(tau))
 
 
+def at_point(t_gt_ns, llh, v_n, euler, l_b) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (K, 3) [rad, rad, m] and NED velocities (K, 3) [m/s] of the point at l_b [m, body FRD] from the
+    reference's (GT rows: llh, v_n, euler [rad]): r_n = C_nb l_b, v_n + C_nb (omega_nb_b x l_b), omega_nb_b
+    between consecutive GT attitudes interpolated at the rows."""
+    C_nb = euler_to_dcm(euler)
+    t_mid, omega_nb_b = gt_body_rates(np.asarray(t_gt_ns), euler)
+    omega_rows = _interp(np.asarray(t_gt_ns) / NS, t_mid, omega_nb_b)
+    r_n = C_nb @ l_b
+    dllh = np.stack(earth.ned_to_dllh(r_n.T, llh[:, 0], llh[:, 2]), -1)
+    return llh + dllh, v_n + np.einsum("kij,kj->ki", C_nb, np.cross(omega_rows, l_b))
+
+
 def _skew(option, name, estimate, path) -> tuple[float, float | None]:
     """(skew [s], fit residual or None when given) from a skew option "auto" (estimate()) or a number."""
     if option == "auto":
@@ -237,7 +256,7 @@ def load(
     retime: bool = True,
     skew_s="auto",
     dvl_skew_s="auto",
-    dvl_lever: bool = True,
+    ref_lever: bool = True,
     gnss_s: float = 60.0,
     seed: int = 0,
     depth_std_m: float = 0.05,
@@ -247,7 +266,7 @@ def load(
 ) -> Dataset:
     """One TrajectoryN folder -> Dataset (module doc). retime: rows at the README's 1 Hz / 100 Hz (True) or the
     files' time columns; skew_s: "auto" or t_GT - t_IMU [s]; dvl_skew_s: "auto" or
-    t_GT - t_DVL [s]; dvl_lever: DVL_LEVER_B (True) or 0 as the DVL lever arm; gnss_s: derived GNSS
+    t_GT - t_DVL [s]; ref_lever: the reference moved to the IMU by IMU_FROM_REF_B (True) or not; gnss_s: derived GNSS
     fixes during this many seconds from the start (0: none); seed: of every derived noise and of the anomalies;
     depth_std_m / depth_bias_m: derived depth white-noise 1-sigma and constant bias [m]; anomalies: a
     zennav.datasets.dvl_anomalies spec, injected at or after anomalies_from_s [s] from the start."""
@@ -274,9 +293,13 @@ def load(
     f_b = imu_table.data[:, 1:4] @ C_B_S.T
     omega_b = imu_table.data[:, 4:7] @ C_B_S.T
 
-    llh = np.column_stack([gt[:, 2], gt[:, 1], gt[:, 3]])  # file order: longitude, latitude, altitude
-    v_n = gt[:, 4:7].copy()
+    llh_ref = np.column_stack([gt[:, 2], gt[:, 1], gt[:, 3]])  # file order: longitude, latitude, altitude
+    v_n_ref = gt[:, 4:7].copy()
     euler = np.column_stack([gt[:, 7], gt[:, 8], wrap_angle(gt[:, 9])])
+    if not isinstance(ref_lever, bool):
+        raise DataError(folder, f"ref_lever must be true or false, got {ref_lever!r}")
+    l_b = IMU_FROM_REF_B.copy() if ref_lever else np.zeros(3)
+    llh, v_n = at_point(t_gt, llh_ref, v_n_ref, euler, l_b)
 
     skew, residual = _skew(skew_s, "skew_s", lambda: estimate_time_offset(t_imu, omega_b, t_gt, euler), imu_path)
     t_imu = t_imu + round(skew * NS)
@@ -319,10 +342,9 @@ def load(
     )
 
     B = janus_directions(DVL_TILT, DVL_LAYOUT)
-    lever_b = DVL_LEVER_B.copy() if dvl_lever else np.zeros(3)
     v_d_all = dvl_table.data[:, 1:4]
     dvl_skew, dvl_residual = _skew(
-        dvl_skew_s, "dvl_skew_s", lambda: estimate_dvl_skew(t_gt, v_n, euler, t_dvl, v_d_all, lever_b), dvl_path)
+        dvl_skew_s, "dvl_skew_s", lambda: estimate_dvl_skew(t_gt, v_n_ref, euler, t_dvl, v_d_all, l_b), dvl_path)
     t_dvl = t_dvl + round(dvl_skew * NS)
     dvl_rows = (t_dvl >= t0) & (t_dvl <= imu.t_ns[-1])
     v_d = v_d_all[dvl_rows]
@@ -342,9 +364,9 @@ def load(
                       + depth_std_m * rng_depth.standard_normal(int(depth_rows.sum())))
 
     truth = Truth(t_ns=t_gt, llh=llh, v_n=v_n, euler=euler,
-                  source="Delph post-processed Phins solution (aided by the same DVL: not independent)")
+                  source="Delph post-processed Phins solution at the IMU (aided by the same DVL: not independent)")
     config = NavConfig(imu_noise=_imu_noise(), lever_arm_b=np.zeros(3), start_t_ns=t0, dvl_tilt=DVL_TILT,
-                       dvl_layout=DVL_LAYOUT, dvl_lever_b=tuple(lever_b.tolist()), depth_surface_h_m=0.0,
+                       dvl_layout=DVL_LAYOUT, depth_surface_h_m=0.0,
                        has_dvl=True, has_depth=True,
                        dvl_beam_std_mps=DVL_STD_MPS, dvl_velocity_std_mps=DVL_STD_MPS,
                        depth_std_m=max(depth_std_m, MIN_DEPTH_STD_M))
@@ -361,14 +383,15 @@ def load(
         "skew": "estimated from the GT attitude rates (t_GT = t_IMU + skew_s)" if residual is not None else "given",
         "skew_fit_rms_dps": None if residual is None else math.degrees(residual),
         "dvl": f"DERIVED beams: Janus tilt {math.degrees(DVL_TILT):g} deg, layout {DVL_LAYOUT!r}, from the recorded "
-               "body-frame DVL velocity (also given as velocity_d); DVL frame = body frame, lever arm "
-               f"{lever_b.tolist()} m ({'estimated vehicle constant' if dvl_lever else 'none'})",
+               "body-frame DVL velocity (also given as velocity_d); DVL frame = body frame, at the IMU",
         "dvl_std_mps": DVL_STD_MPS,
         "dvl_skew_s": dvl_skew,
         "dvl_skew": "estimated from the GT body velocity (t_GT = t_DVL + dvl_skew_s)" if dvl_residual is not None
                     else "given",
         "dvl_skew_fit_rms_mps": dvl_residual,
-        "dvl_lever_b_m": lever_b.tolist(),
+        "imu_from_reference_b_m": l_b.tolist(),
+        "reference": "GT moved from its output point to the IMU by imu_from_reference_b_m (estimated)" if ref_lever
+                     else "GT as given (its output point taken as the IMU)",
         "depth": f"DERIVED from the GT altitude: -alt + {depth_bias_m:g} m bias + N(0, {depth_std_m:g} m), 1 Hz",
         "gnss": (f"DERIVED from the GT, first {gnss_s:g} s only ('at the surface'): {len(gnss)} fixes, 1-sigma N/E/D "
                  f"{GNSS_STD_M.tolist()} m and {GNSS_VEL_STD_MPS} m/s, seeded noise") if len(gnss)
