@@ -6,8 +6,9 @@ IMU (``IMU_trajectoryN.csv.gz``, 100 Hz, time = linspace(0, 400, 40000) [s], ACC
 - **y axis flipped**: these are the authors' pre-fix IMU files, whose y axis is sign-flipped against the GT/DVL body
   frame (forward-right-down). README evidence: raw gyro-y is anti-correlated with the GT pitch rate (r = -0.97 on
   T12) and the accelerometer roll with the GT roll (r = -0.95); after negating ACC Y and GYRO Y, gyro-only attitude
-  on T12 stays within 0.44/0.26/0.10 deg of the GT over 400 s, without it it drifts to 8.3 deg in pitch. The loader
-  negates both columns (C_B_S); tests/unit/test_akit.py checks it (``gyro_attitude``).
+  on T12 stays within 0.44/0.26/0.10 deg of the GT over 400 s, without it it drifts to 8.3 deg in pitch (retimed and
+  skew-corrected as below: within 0.01 deg with the flip, on every segment within 0.3 deg). The loader negates
+  both columns (C_B_S); tests/unit/test_akit.py checks it (``gyro_attitude``).
 - **rounded**: gyro to q_g = 1e-4 rad/s (20.6 deg/h), accelerometer to q_a = 1e-4 m/s^2. The vehicle's own motion
   dithers the rounding (second differences of the 100 Hz samples show 1.6e-4 to 8.8e-4 rad/s and 0.008 to
   0.046 m/s^2 per sample, well above q), so it acts as white noise of variance q^2 / 12 per sample, i.e. a random
@@ -62,7 +63,8 @@ Times: the files carry no absolute time; t_ns = ns since the first GT row (GT ti
 
 GT (``GT_trajectoryN.csv``, 1 Hz: longitude, latitude [rad], altitude [m, negative under water], v_N/E/D [m/s],
 roll, pitch, yaw [rad]): a Delph post-processed solution of the same Phins aided by the same DVL, so a high-quality
-reference, **not independent** of the IMU/DVL. It is the Truth (llh, v_n, euler) and gives the initial state.
+reference, **not independent** of the IMU/DVL. Moved to the IMU (above), it is the Truth (llh, v_n, euler) and gives
+the initial state.
 
 Derived sensors (none of these is a recording; notes say so too):
 - **DVL beams, derived**: the file gives the DVL's velocity in the body frame at 1 Hz. The four Janus beams of the
@@ -72,12 +74,12 @@ Derived sensors (none of these is a recording; notes say so too):
   derived from a 3-D velocity the choice changes no information, only which beam pairs are "parallel". DVL frame =
   body frame (the mounting is not documented: zero), at the IMU (lever arm 0; above). The filter is told
   the README's 0.02 m/s per beam (NavConfig dvl_beam_std_mps, dvl_velocity_std_mps).
-- **Depth, derived** from the GT altitude: depth = -alt + a constant bias (depth_bias_m, default 0) + seeded white
-  noise (depth_std_m, default 0.05 m: a 0.1 % full-scale pressure sensor of 50 m) at the GT rate (1 Hz); the
-  water surface is height 0 (NavConfig.depth_surface_h_m).
-- **GNSS, derived**: an AUV has GNSS only at the surface. Fixes from the GT at 1 Hz, only for the first gnss_s
-  seconds of the run (default 60 s, "at the surface" to align and train; 0: none), with seeded white noise of
-  GNSS_STD_M (position) and GNSS_VEL_STD_MPS (velocity), the reported 1-sigma.
+- **Depth, derived** from the GT altitude at the IMU: depth = -alt + a constant bias (depth_bias_m, default 0) +
+  seeded white noise (depth_std_m, default 0.05 m: a 0.1 % full-scale pressure sensor of 50 m) at the GT rate
+  (1 Hz); the water surface is height 0 (NavConfig.depth_surface_h_m).
+- **GNSS, derived**: an AUV has GNSS only at the surface. Fixes from the GT at the IMU (lever arm 0) at 1 Hz, only
+  for the first gnss_s seconds of the run (default 60 s, "at the surface" to align and train; 0: none), with seeded
+  white noise of GNSS_STD_M (position) and GNSS_VEL_STD_MPS (velocity), the reported 1-sigma.
 - **DVL anomalies** (zennav.datasets.dvl_anomalies) where asked (``anomalies=<spec>``), recorded in notes.
 """
 from __future__ import annotations
