@@ -35,7 +35,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
                    seed: int = 0, params: Path | None = None, nhc: bool | None = None, mcap: Path | None = None,
                    quiet: bool = False, smooth: bool = False, profile: str | None = None,
                    constraints: list[str] | None = None, odometer: Path | None = None,
-                   options: dict | None = None) -> dict:
+                   options: dict | None = None, dvl: str | None = None, vb: list[str] | None = None) -> dict:
     """Load, replay, evaluate, write and print; returns the metrics. heading_unknown: start from the dataset's
     initial state without its yaw (alignment); adaptive_r: override the parameter file's adaptive_r (None: keep);
     seed: of the learned model; params: the ins's filter parameter file (None: deploy/ins.yaml, as the ins);
@@ -44,7 +44,9 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     constraint after both (None: keep); odometer: a KF-GINS-Matlab ODO file of wheel speeds for the dataset;
     mcap: also write the run as a Foxglove-ready MCAP; quiet: no progress line (there is none either when stderr is
     not a terminal); smooth: also the forward-backward smoothed solution (metrics under "smoothed", files under
-    smoothed/); options: the dataset loader's options (e.g. duration_s, seed of a simulated drive)."""
+    smoothed/); options: the dataset loader's options (e.g. duration_s, seed of a simulated drive); dvl: the DVL mode
+    (off, loose, tight; None: the parameter file's); vb: the sources with variational-Bayes R ("dvl", "gnss"; None:
+    the parameter file's)."""
     from .datasets.errors import DataError
     from .datasets.odometer import load_kfgins_odometer
     from .datasets.registry import load_dataset
@@ -69,6 +71,10 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.config = ds.config.with_(adaptive_r=adaptive_r)
     if nhc is not None:
         ds.config = ds.config.with_(nhc=nhc)
+    if dvl is not None:
+        ds.config = ds.config.with_(dvl_mode=dvl)
+    if vb is not None:
+        ds.config = ds.config.with_(vb_dvl="dvl" in vb, vb_gnss="gnss" in vb)
     progress = Progress.of_replay(ds, f"replay {ds.name}", quiet)
     recorder = RunRecorder(int(ds.initial.t_ns), mcap)
 
@@ -172,6 +178,14 @@ _outage_opts = [
 ]
 
 
+def _vb_sources(text: str) -> list[str]:
+    """--vb's comma-separated source list (dvl, gnss, none) -> the names; click.BadParameter for another name."""
+    names = [x for x in text.split(",") if x and x != "none"]
+    if any(n not in ("dvl", "gnss") for n in names):
+        raise click.BadParameter(f"{text!r}: a comma-separated list of dvl, gnss, or none")
+    return names
+
+
 def _with_outage_opts(f):
     for opt in reversed(_outage_opts):
         f = opt(f)
@@ -215,12 +229,19 @@ def _setup_logging(verbose: int) -> None:
 @click.option("-o", "--option", "options", multiple=True, metavar="KEY=VALUE",
               help="A dataset loader option, as zennav-ingest's (repeatable): e.g. -o duration_s=120 -o seed=3 for a "
                    "simulated drive.")
+@click.option("--dvl", "dvl", type=click.Choice(["off", "loose", "tight"]), default=None,
+              help="DVL aiding where the dataset has a DVL (sim:auv): tight (per beam, with beam-bias and scale-factor "
+                   "states), loose (its 3-D velocity) or off; default: the parameter file's (tight).")
+@click.option("--vb", "vb", default=None, metavar="LIST",
+              callback=lambda c, p, v: None if v is None else _vb_sources(v),
+              help="Variational-Bayes adaptive measurement noise on these sources, comma-separated from dvl, gnss, "
+                   "or none; default: the parameter file's (none).")
 @_with_outage_opts
 def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, profile, constraints, odometer, smooth,
-           options, outages, every, out, as_json, compensation, target, seed, verbose, mcap, quiet):
+           options, dvl, vb, outages, every, out, as_json, compensation, target, seed, verbose, mcap, quiet):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
-    DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, a dataset folder, or a
+    DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, sim:auv, a dataset folder, or a
     KF-GINS YAML file (same as --kf-gins-config). Position errors are horizontal/vertical in metres,
     velocity in m/s, attitude in degrees; errors are computed only where truth exists.
     """
@@ -231,7 +252,7 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, pr
         raise click.UsageError("give exactly one of DATASET or --kf-gins-config")
     replay_dataset(str(kf_gins_config or dataset), outages, every, out, as_json, compensation, target,
                    heading_unknown, adaptive_r, seed, params, nhc, mcap, quiet, smooth, profile, constraints,
-                   odometer, parse_loader_options(options))
+                   odometer, parse_loader_options(options), dvl, vb)
 
 
 @click.command("report")

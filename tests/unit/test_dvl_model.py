@@ -127,6 +127,7 @@ def test_partial_beam_cases_are_counted_and_tight_fuses_the_valid_beams():
         assert nav.counters[f"dvl_beams_{case}"] == 1
         rep = nav.pop_reports()[-1]
         assert f"beams_{case}" in rep.faults and len(rep.innovation) == sum(valid) and rep.fused is fused
+        assert not fused or "valid_" + "".join(map(str, valid)) in rep.faults
     assert rep.reason == "dvl_beams_0" and "predicted" in rep.faults
 
 
@@ -177,3 +178,25 @@ def test_no_dvl_data_no_sources_no_states():
     assert "dvl" not in nav.sources and "depth" not in nav.sources and nav.n_states == 15
     nav = _nav(dvl_mode="off", depth=False)
     assert not {"dvl", "dvl_loose", "depth"} & set(nav.sources)
+
+
+def test_state_round_trip_with_dvl_depth_and_vb():
+    """get_state / set_state carry the DVL and depth states and the VB estimator (the ins's checkpoint)."""
+    nav = _nav(vb_dvl=True)
+    src = nav.sources["dvl"]
+    assert nav.on_aid("dvl", _beams_at(nav, src, (1, 1, 1, 0), 0.01))
+    state = nav.get_state()
+    other = _nav(vb_dvl=True)
+    other.set_state(state)
+    assert other.get_state() == state and other.sources["dvl"].vb.count == 1
+
+
+def test_dvl_mode_in_the_parameter_file(tmp_path):
+    from zennav.params import ParamError, load_filter_params
+
+    p = tmp_path / "ins.yaml"
+    p.write_text("ins:\n  dvl:\n    dvl_mode: loose\n    dvl_scale_std: 1.0 %\n  vb:\n    vb_dvl: true\n")
+    assert load_filter_params(p) == {"dvl_mode": "loose", "dvl_scale_std": 0.01, "vb_dvl": True}
+    p.write_text("ins:\n  dvl:\n    dvl_mode: sideways\n")
+    with pytest.raises(ParamError, match=":3: dvl.dvl_mode: 'sideways' is not one of off, loose, tight"):
+        load_filter_params(p)

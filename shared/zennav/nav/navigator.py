@@ -356,7 +356,7 @@ class Navigator:
             R = est.update(z, H @ self.kf.P @ H.T, R)
         vb = source.vb if m.gated else None
         if vb is not None:  # variational-Bayes R (zennav.nav.vbkf), then the update with it
-            R = vb.update(z, H @ self.kf.P @ H.T, R, m.channels)
+            R = vb.update(z, H @ self.kf.P @ H.T, R, m.channels, gate)
         source.R_used = R
         reason, faults = "", list(m.faults)
         # consistency monitoring once aligned: while the heading converges, steady innovations are its error

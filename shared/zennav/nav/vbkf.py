@@ -22,6 +22,10 @@ nominal sigmas are right, clipped into [floor, ceiling], R = L R~ L'. The prior 
 nominal R with the weight of one forgetting length: alpha = beta = 1 / (2 (1 - rho)), the fixed point of the
 alpha recursion.
 
+Outliers (with the engine's chi-square gate): the innovation is tested against its predictive covariance with the
+current estimate of R before the VB iterations; a sample outside the gate is rejected without touching the estimator
+(the VB posterior would otherwise absorb the outlier into R and let it through its own gate).
+
 Per update the estimator keeps what the learned DVL compensation (seed step 2.1) takes as features: the innovation
 nu (predicted minus observed), the Mahalanobis distance lambda = nu' (H P^- H' + R)^-1 nu and diag(R) (``last``).
 """
@@ -97,11 +101,28 @@ class VariationalR:
         self.last = res
         self.count += 1
 
-    def update(self, nu: np.ndarray, HPHt: np.ndarray, R_nom: np.ndarray, channels=None) -> np.ndarray:
-        """Solve and commit; returns R for this update [unit^2] (the engine's call, Navigator.update)."""
+    def update(self, nu: np.ndarray, HPHt: np.ndarray, R_nom: np.ndarray, channels=None,
+               gate: float | None = None) -> np.ndarray:
+        """The engine's call (Navigator.update): R for this update [unit^2]. With a chi-square gate, the innovation is
+        first tested against its predictive covariance H P H' + R_prior (R_prior: the current estimate, before this
+        sample): outside the gate the sample is an outlier, R_prior is returned (the engine's gate then rejects it)
+        and the estimator is left unchanged, so that an outlier neither inflates R nor opens the gate for itself;
+        inside, solve and commit and return the VB R."""
+        if gate is not None:
+            R_prior = self.prior_R(R_nom, channels, len(nu))
+            S = HPHt + R_prior
+            if not float(nu @ np.linalg.solve(0.5 * (S + S.T), nu)) <= gate:
+                return R_prior
         res = self.solve(nu, HPHt, R_nom, channels)
         self.commit(res)
         return res.R
+
+    def prior_R(self, R_nom: np.ndarray, channels, dim: int) -> np.ndarray:
+        """The current estimate of R [unit^2] for these channels (None: 0..dim-1), before a new sample."""
+        keys = tuple(range(dim)) if channels is None else tuple(channels)
+        L = np.linalg.cholesky(R_nom)
+        R = L @ np.diag([self.ratio(k) for k in keys]) @ L.T
+        return 0.5 * (R + R.T)
 
     def ratio(self, channel) -> float:
         """The current estimate of a channel's R as a ratio to its nominal R (1 for a channel not seen yet)."""

@@ -14,7 +14,8 @@ truth as every error state). With the vehicle-model Jacobian H_v of v_d (v_d_hat
 Tight coupling fuses each VALID beam as its own row: a missing beam is simply left out of H, so three, two (adjacent
 or opposite) or even one beam still aid the filter. The partial-beam case of each sample (zennav.nav.beams.beam_case:
 4, 3, 2_orthogonal, 2_parallel, 1, 0 valid beams) is counted (dvl_beams_<case>) and flagged in its status record
-(fault "beams_<case>"); with none valid there is no update ("dvl_beams_0", the INS-predicted beams: no information).
+(faults "beams_<case>" and "valid_<b1 b2 b3 b4>", e.g. valid_1101: the observation and innovation list those beams);
+with none valid there is no update ("dvl_beams_0", the INS-predicted beams: no information).
 The reconstruction of missing beams (beams.reconstruct_beams: exact from 3 beams; from 2 adjacent ones under the seed's
 no-vertical-velocity assumption) is used where the seed needs all four beams: the learning features (``trial``).
 
@@ -190,13 +191,14 @@ class DvlTight(_DvlSource):
         rows = np.flatnonzero(valid)
         z = predicted[rows] - beams[rows]
         R = np.eye(len(rows)) * self.R_beam
-        faults = (f"beams_{case}",) + (("corrected",) if correction is not None else ())
+        faults = (f"beams_{case}", "valid_" + "".join("1" if v else "0" for v in valid)) + (
+            ("corrected",) if correction is not None else ())
         return nav.update(self, Measurement(int(sample.t_ns), beams[rows], z, H[rows], R, faults=faults,
                                             channels=tuple(int(r) for r in rows)))
 
     def trial(self, nav, sample: DvlSample) -> BeamFeatures | None:
         """The sample's learning features (BeamFeatures) at the engine's state, nothing fused and the VB state
-        unchanged; None in coarse alignment."""
+        unchanged (the covariance is propagated to now, as a fuse would); None in coarse alignment."""
         if nav.align_state == AlignState.COARSE:
             return None
         beams, valid = self.beams_of(sample)
