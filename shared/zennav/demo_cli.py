@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-COMPENSATIONS = ("anfis", "anfis-pso", "elman")  # zennav.learn.settings.COMPENSATIONS (checked by a test)
+COMPENSATIONS = ("anfis", "anfis-pso", "anfis-ipso", "elman")  # zennav.learn.settings.COMPENSATIONS (checked by a test)
 
 
 @click.command()

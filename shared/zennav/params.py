@@ -89,6 +89,11 @@ FILTER: dict[str, Param] = {
     "learn_after_s": Param("learning", "s"),
     "learn_horizon_s": Param("learning", "s"),
     "learn_answer_max_age_s": Param("learning", "s"),
+    "dvl_answer_timeout_s": Param("learning", "s"),
+    "dvl_anomaly_k_sigma": Param("learning", ""),
+    "dvl_anomaly_probability": Param("learning", ""),
+    "dvl_anomaly_window": Param("learning", "", "int"),
+    "dvl_anomaly_min_count": Param("learning", "", "int"),
     # vehicle-motion constraints
     "nhc": Param("constraints", "", "bool"),
     "nhc_std_mps": Param("constraints", "m/s"),

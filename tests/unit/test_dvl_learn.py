@@ -1,0 +1,111 @@
+"""Learned DVL beam errors (seed 003): standardisation, bell-MF ANFIS numpy == torch, the improved PSO schedule and
+the anomaly discrimination rule."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from zennav.learn import anfis_numpy
+from zennav.learn.pso import IMPROVED, Swarm
+from zennav.nav.dvl_anomaly import AnomalyRule, BeamDiscriminator
+from zennav.nav.learning import FEATURES, MINMAX_FEATURES, OUTPUTS
+
+
+def _beam_features(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Synthetic (innovation [m/s], lambda, R_vb [(m/s)^2]) and a beam error that grows with the innovation."""
+    rng = np.random.default_rng(seed)
+    innov = rng.normal(0.0, 0.02, n)
+    lam = rng.chisquare(4, n)
+    r_vb = 1e-4 * (1.0 + rng.random(n))
+    x = np.column_stack([innov, lam, r_vb])
+    y = 0.8 * innov + 0.002 * np.tanh(lam - 4.0) + rng.normal(0.0, 0.002, n)
+    return x, y[:, None]
+
+
+def test_dvl_beam_variant_is_declared():
+    assert FEATURES["dvl_beam"] == ("innovation", "lambda", "r_vb") and OUTPUTS["dvl_beam"] == ("error",)
+    assert MINMAX_FEATURES["dvl_beam"] == (1, 2)
+
+
+def test_standardisation_z_score_and_min_max_round_trip():
+    """Seed 003 step 3.1: the innovation z-scored, lambda and R in [0, 1]; the scaling inverts exactly."""
+    x, y = _beam_features(500)
+    norm = anfis_numpy.fit_normalization(x, y, minmax=MINMAX_FEATURES["dvl_beam"])
+    xn = (x - norm["x_mean"]) / norm["x_std"]
+    assert abs(xn[:, 0].mean()) < 1e-12 and abs(xn[:, 0].std() - 1.0) < 1e-12
+    for j in (1, 2):
+        assert xn[:, j].min() == pytest.approx(0.0, abs=1e-12) and xn[:, j].max() == pytest.approx(1.0)
+    np.testing.assert_allclose(xn * norm["x_std"] + norm["x_mean"], x, rtol=1e-12, atol=1e-15)
+    # the domain check works in the same units: half a range past the largest lambda is 0.5
+    far = x[0].copy()
+    far[1] = norm["x_max"][1] + 0.5 * (norm["x_max"][1] - norm["x_min"][1])
+    assert anfis_numpy.domain_excess(norm, far) == pytest.approx(0.5)
+
+
+def test_bell_anfis_numpy_equals_torch_with_the_seed_standardisation():
+    """The trainer's torch ANFIS (generalised bell MFs) and the predictor's numpy forward give the same numbers."""
+    torch = pytest.importorskip("torch")
+    from zennav.learn.anfis_torch import TorchAnfis, TrainConfig, fit_anfis
+
+    x, y = _beam_features(400, seed=1)
+    fit = fit_anfis(x, y, n_rules=4, config=TrainConfig(method="ipso", max_epochs=3, seed=0),
+                    minmax=MINMAX_FEATURES["dvl_beam"], device="cpu")
+    assert np.all(fit.arrays["b"] > 0) and np.all(fit.arrays["a"] > 0)
+    xn = (x - fit.norm["x_mean"]) / fit.norm["x_std"]
+    y_np = anfis_numpy.forward(fit.arrays, xn)
+    with torch.no_grad():
+        y_t = TorchAnfis(fit.arrays, device="cpu").forward(xn).numpy()
+    np.testing.assert_allclose(y_np, y_t, rtol=1e-10, atol=1e-12)
+    assert fit.metrics["method"] == "ipso"
+    assert fit.metrics["train_rmse"][0] < 0.5 * float(np.std(y))  # it learned the beam error
+
+
+def test_improved_pso_schedule_and_convergence():
+    """w 0.9 -> 0.4, c1 2.5 -> 0.5, c2 0.5 -> 2.5 linearly over max_iter (Shi-Eberhart 1998, Ratnaweera 2004)."""
+    cfg = IMPROVED.__class__(**{**IMPROVED.__dict__, "max_iter": 11, "n_particles": 16})
+    sphere = lambda p: np.sum((p - 0.3) ** 2, axis=1)  # noqa: E731
+    swarm = Swarm(sphere, -np.ones(4), np.ones(4), cfg, seed=3)
+    seen = []
+    while swarm.iteration < cfg.max_iter:
+        seen.append(swarm.coefficients())
+        swarm.step()
+    np.testing.assert_allclose(seen[0], (0.9, 2.5, 0.5))
+    np.testing.assert_allclose(seen[5], (0.65, 1.5, 1.5))
+    np.testing.assert_allclose(seen[-1], (0.4, 0.5, 2.5))
+    assert swarm.best_f < 0.05 * swarm.history[0]
+
+
+def test_discrimination_compensates_a_bias_jump_and_leaves_clean_beams_alone():
+    rule = AnomalyRule(k_sigma=3.0, probability=0.99, window=5, min_count=3)
+    disc = BeamDiscriminator(rule)
+    R = np.full(4, 0.01**2)  # 1 cm/s beam noise
+    ok, valid = np.ones(4, dtype=bool), np.ones(4, dtype=bool)
+    rng = np.random.default_rng(0)
+    for _ in range(20):  # clean: predicted errors of the size of the noise, lambda chi-square(4) distributed
+        corr, dec = disc.decide(rng.normal(0, 0.01, 4) * 0.5, ok, valid, float(rng.chisquare(4)), R, 4)
+        assert dec == ["normal"] * 4 and not np.any(corr)
+    # beam 2 jumps by 0.2 m/s: the innovation fails the chi-square test at once
+    pred = np.array([0.001, -0.002, 0.2, 0.0])
+    corr, dec = disc.decide(pred, ok, valid, 400.0, R, 4)
+    assert dec == ["normal", "normal", "compensated", "normal"] and corr[2] == 0.2 and corr[[0, 1, 3]].sum() == 0
+    # later the VB R has grown and lambda is small: the persistent large prediction still compensates
+    corr, dec = disc.decide(pred, ok, valid, 3.0, np.array([1e-4, 1e-4, 1e-3, 1e-4]), 4)
+    assert dec[2] == "normal"  # 2 of 5: not yet persistent
+    corr, dec = disc.decide(pred, ok, valid, 3.0, np.array([1e-4, 1e-4, 1e-3, 1e-4]), 4)
+    assert dec[2] == "compensated" and corr[2] == 0.2
+    # a large lambda alone (an INS error, small predicted errors) compensates nothing
+    corr, dec = disc.decide(np.full(4, 0.005), ok, valid, 400.0, R, 4)
+    assert dec == ["normal"] * 4
+    corr, dec = disc.decide(pred, np.array([True, False, True, True]), np.array([True, True, True, False]), 400.0,
+                            R, 3)
+    assert dec == ["normal", "no_answer", "compensated", "invalid"]
+    assert disc.counts["compensated"] == 3 and disc.counts["no_answer"] == 1 and disc.counts["invalid"] == 1
+    st = disc.get_state()
+    other = BeamDiscriminator(rule)
+    other.set_state(st)
+    assert other.get_state() == st
+
+
+def test_rule_rejects_bad_thresholds():
+    with pytest.raises(ValueError):
+        AnomalyRule(min_count=6, window=5)
