@@ -27,7 +27,8 @@ INS_PARAMS = DEPLOY_DIR / "ins.yaml"
 ATTITUDE_PARAMS = DEPLOY_DIR / "attitude.yaml"
 
 SENSOR_FIELDS = ("imu_noise", "lever_arm_b", "dvl_tilt", "dvl_layout", "dvl_mount_euler", "dvl_lever_b",
-                 "depth_surface_h_m", "start_t_ns", "end_t_ns")  # travel with the data (stream_start)
+                 "depth_surface_h_m", "has_dvl", "has_depth", "start_t_ns",
+                 "end_t_ns")  # travel with the data (stream_start)
 SERVICE_FIELDS = ("learning",)  # set by the ins's --learning / replay's --compensation
 
 
@@ -38,13 +39,14 @@ class ParamError(ValueError):
 @dataclass(frozen=True)
 class Param:
     """One filter setting: its section in the file, the human unit written beside the value, the kind of
-    value ("float", "int", "bool", "fix": a FixType name, "vec3": three numbers and one unit, '0, 0, 0 m') and
-    the factor to SI (deg -> rad)."""
+    value ("float", "int", "bool", "fix": a FixType name, "vec3": three numbers and one unit, '0, 0, 0 m',
+    "choice": one of choices) and the factor to SI (deg -> rad)."""
 
     section: str
     unit: str
     kind: str = "float"
     to_si: float = 1.0
+    choices: tuple = ()
 
 
 _DEG = math.pi / 180.0
@@ -127,6 +129,31 @@ FILTER: dict[str, Param] = {
     "consistency_max_pos_m": Param("robust", "m"),
     "consistency_max_vel_mps": Param("robust", "m/s"),
     "consistency_max_factor": Param("robust", ""),
+    # DVL and depth aiding (an AUV)
+    "dvl_mode": Param("dvl", "", "choice", choices=("off", "loose", "tight")),
+    "dvl_beam_std_mps": Param("dvl", "m/s"),
+    "dvl_velocity_std_mps": Param("dvl", "m/s"),
+    "dvl_bias_std_mps": Param("dvl", "m/s"),
+    "dvl_bias_psd": Param("dvl", "m^2/s^3"),
+    "dvl_bias_tau_s": Param("dvl", "s"),
+    "dvl_scale_std": Param("dvl", "%", to_si=0.01),
+    "dvl_scale_psd": Param("dvl", "%^2/s", to_si=1e-4),
+    "dvl_scale_tau_s": Param("dvl", "s"),
+    "dvl_max_age_s": Param("dvl", "s"),
+    "dvl_max_beam_mps": Param("dvl", "m/s"),
+    "depth": Param("dvl", "", "bool"),
+    "depth_std_m": Param("dvl", "m"),
+    "depth_bias_std_m": Param("dvl", "m"),
+    "depth_bias_psd": Param("dvl", "m^2/s"),
+    "depth_bias_tau_s": Param("dvl", "s"),
+    "depth_max_age_s": Param("dvl", "s"),
+    # variational-Bayes adaptive measurement noise
+    "vb_dvl": Param("vb", "", "bool"),
+    "vb_gnss": Param("vb", "", "bool"),
+    "vb_forgetting": Param("vb", ""),
+    "vb_iterations": Param("vb", "", "int"),
+    "vb_floor": Param("vb", ""),
+    "vb_ceiling": Param("vb", ""),
 }
 
 # Vehicle profiles: the constraint names a profile lists (deploy/ins.yaml ``profiles``) and their NavConfig switch.
@@ -251,6 +278,10 @@ def _convert(value, spec: Param, where: str):
         return int(FixType[value.upper()])
     if spec.kind == "vec3":
         return _convert_vec3(value, spec, where)
+    if spec.kind == "choice":
+        if not isinstance(value, str) or value not in spec.choices:
+            raise ParamError(f"{where}: {value!r} is not one of {', '.join(spec.choices)}")
+        return value
     number, unit = value, ""
     if isinstance(value, str):
         number, _, unit = value.strip().partition(" ")

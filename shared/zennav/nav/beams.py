@@ -31,3 +31,55 @@ def janus_directions(tilt: float, layout: str = "x") -> np.ndarray:
 def beams_from_velocity(v_d: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Beam velocities [m/s] (..., 4) of DVL-frame velocities v_d (..., 3) [m/s]."""
     return np.asarray(v_d, dtype=float) @ B.T
+
+
+# Partial beams (seed step 2.4). Opposite beams (1-3, 2-4: azimuths psi and psi + 180 deg) have b_i + b_j =
+# 2 cos(alpha) e_z, so v_1 + v_3 = v_2 + v_4 = 2 cos(alpha) v_d,z for any velocity: with 3 valid beams the fourth is
+# v_missing = (sum of the other pair) - (its opposite beam), exact. With 2 adjacent ("orthogonal") valid beams the
+# seed assumes no vertical velocity (v_d,z = 0: the AUV does not heave; wrong when it rises or sinks with the swell):
+# each missing beam is minus its opposite, v_3 = -v_1, v_4 = -v_2. Two opposite ("parallel") beams give only the
+# velocity in their plane, one beam or none less: no reconstruction, the missing beams stay the INS-predicted ones
+# (no information).
+BEAM_CASES = ("4", "3", "2_orthogonal", "2_parallel", "1", "0")
+_OPPOSITE = (2, 3, 0, 1)
+
+
+def beam_case(valid) -> str:
+    """Which partial-beam case (BEAM_CASES) a validity mask (4,) of beams 1..4 is."""
+    v = np.asarray(valid, dtype=bool)
+    n = int(v.sum())
+    if n != 2:
+        return str(n)
+    i, j = np.flatnonzero(v)
+    return "2_parallel" if _OPPOSITE[i] == j else "2_orthogonal"
+
+
+def reconstruct_beams(beams, valid) -> np.ndarray | None:
+    """All four beam velocities [m/s] from the valid ones (module notes above): the valid beams as given, the missing
+    ones reconstructed; None in the cases without a reconstruction (2 parallel, 1 or 0 valid beams)."""
+    v = np.asarray(valid, dtype=bool)
+    out = np.where(v, np.asarray(beams, dtype=float), 0.0)
+    case = beam_case(v)
+    if case == "4":
+        return out
+    if case == "3":
+        k = int(np.flatnonzero(~v)[0])
+        pair = [i for i in range(4) if i not in (k, _OPPOSITE[k])]
+        out[k] = out[pair[0]] + out[pair[1]] - out[_OPPOSITE[k]]
+        return out
+    if case == "2_orthogonal":
+        for k in np.flatnonzero(~v):
+            out[k] = -out[_OPPOSITE[k]]
+        return out
+    return None
+
+
+def velocity_from_beams(beams, valid, B: np.ndarray) -> np.ndarray | None:
+    """Least-squares DVL-frame velocity v_d [m/s] (3,) from the valid beams ([m/s], (4,)) of directions B (4 x 3), with
+    the partial-beam reconstruction where fewer than 3 are valid; None where there is none (reconstruct_beams)."""
+    v = np.asarray(valid, dtype=bool)
+    full = np.asarray(beams, dtype=float) if v.sum() >= 3 else reconstruct_beams(beams, v)
+    if full is None:
+        return None
+    use = v if v.sum() >= 3 else np.ones(4, dtype=bool)
+    return np.linalg.lstsq(B[use], full[use], rcond=None)[0]

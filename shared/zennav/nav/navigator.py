@@ -343,9 +343,10 @@ class Navigator:
 
     # ------------------------------------------------------------------ for the sources
     def update(self, source: AidSource, m: Measurement) -> bool:
-        """The engine's one measurement update of a source's measurement: the source's adaptive R and consistency
-        monitor (gated only; the monitor may scale P first, counted {name}_inflated), Joseph form with the
-        chi-square gate, feedback; counted ({name}_fused / {name}_gate) and reported."""
+        """The engine's one measurement update of a source's measurement: the source's adaptive R, its
+        variational-Bayes R and consistency monitor (gated only; the monitor may scale P first, counted
+        {name}_inflated), Joseph form with the chi-square gate, feedback; counted ({name}_fused / {name}_gate) and
+        reported."""
         name, z, H, R = source.name, m.z, m.H, m.R
         if H.shape[1] < self.n_states:  # a model of the INS states only: the augmented states do not enter
             H = np.hstack([H, np.zeros((H.shape[0], self.n_states - H.shape[1]))])
@@ -353,6 +354,9 @@ class Navigator:
         est = source.adaptive if m.gated else None
         if est is not None:
             R = est.update(z, H @ self.kf.P @ H.T, R)
+        vb = source.vb if m.gated else None
+        if vb is not None:  # variational-Bayes R (zennav.nav.vbkf), then the update with it
+            R = vb.update(z, H @ self.kf.P @ H.T, R, m.channels)
         source.R_used = R
         reason, faults = "", list(m.faults)
         # consistency monitoring once aligned: while the heading converges, steady innovations are its error

@@ -347,6 +347,35 @@ class NavConfig:
     dvl_mount_euler: tuple = (0.0, 0.0, 0.0)  # [rad]
     dvl_lever_b: tuple = (0.0, 0.0, 0.0)  # [m]
     depth_surface_h_m: float = 0.0  # height of the water surface [m] (DepthData)
+    has_dvl: bool = False  # the data carries DVL samples (set by the loader; the DVL source runs only then)
+    has_depth: bool = False  # the data carries depth samples (the depth source runs only then)
+    # DVL aiding (zennav.nav.aid.dvl): off, loose (3-D DVL-frame velocity) or tight (per beam, with four beam-bias
+    # states and one scale-factor state, each first-order Gauss-Markov)
+    dvl_mode: str = "tight"
+    dvl_beam_std_mps: float = 0.02  # 1-sigma of one beam velocity [m/s]
+    dvl_velocity_std_mps: float = 0.02  # loose: 1-sigma per axis of a DVL-reported d-frame velocity [m/s]
+    dvl_bias_std_mps: float = 0.01  # initial 1-sigma of each beam bias [m/s]
+    dvl_bias_psd: float = 1e-8  # PSD of its driving noise [(m/s)^2/s]
+    dvl_bias_tau_s: float = 3600.0  # its correlation time [s]
+    dvl_scale_std: float = 0.005  # initial 1-sigma of the scale-factor error [ratio]
+    dvl_scale_psd: float = 1e-9  # PSD of its driving noise [ratio^2/s]
+    dvl_scale_tau_s: float = 3600.0  # its correlation time [s]
+    dvl_max_age_s: float = 0.2  # a sample older than this behind the IMU time is not fused [s]
+    dvl_max_beam_mps: float = 10.0  # a valid beam faster than this (either sign) is malformed [m/s]
+    # pressure depth with a bias state (zennav.nav.aid.depth)
+    depth: bool = True
+    depth_std_m: float = 0.05  # 1-sigma of one depth sample [m]
+    depth_bias_std_m: float = 0.1  # initial 1-sigma of the depth bias [m]
+    depth_bias_psd: float = 1e-6  # PSD of its driving noise [m^2/s]
+    depth_bias_tau_s: float = 3600.0  # its correlation time [s]
+    depth_max_age_s: float = 0.2  # a sample older than this behind the IMU time is not fused [s]
+    # variational-Bayes adaptive measurement noise (zennav.nav.vbkf), per source
+    vb_dvl: bool = False  # on the DVL source (tight or loose)
+    vb_gnss: bool = False  # on the GNSS position and velocity sources
+    vb_forgetting: float = 0.97  # rho, forgetting factor of the inverse-Gamma parameters
+    vb_iterations: int = 3  # fixed-point iterations per update
+    vb_floor: float = 0.1  # lowest R, as a variance ratio to the nominal R
+    vb_ceiling: float = 1e4  # highest R, as a variance ratio to the nominal R
     start_t_ns: int | None = None
     end_t_ns: int | None = None
 

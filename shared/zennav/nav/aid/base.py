@@ -17,6 +17,7 @@ import numpy as np
 
 from ..adaptive_r import AdaptiveR
 from ..consistency import ConsistencyMonitor
+from ..vbkf import VariationalR
 
 
 @dataclass
@@ -45,7 +46,8 @@ class Measurement:
     """One measurement for the engine's update: z = predicted minus observed, z = H dx + v, v ~ N(0, R).
 
     observation: what the source observed (for the report); gated: apply the chi-square gate (and the source's
-    adaptive R); gain_states: the states that may take gain (None: all; else a Schmidt update)."""
+    adaptive R); gain_states: the states that may take gain (None: all; else a Schmidt update); channels: a key per
+    row of z for a per-channel noise estimator (the source's vb; None: the rows 0..dim-1)."""
 
     t_ns: int
     observation: np.ndarray
@@ -55,19 +57,23 @@ class Measurement:
     gated: bool = True
     gain_states: slice | None = None
     faults: tuple = ()
+    channels: tuple | None = None
 
 
 class AidSource:
     """Base of the aiding sources. name: the source name in reports, counters and the key nav/aid/<name>;
-    inputs: the input kinds the engine routes to ``on_input``; adaptive: the adaptive-R estimator or None;
-    consistency: the consistency monitor (zennav.nav.consistency) or None; R_used: R of the last update [unit^2];
+    inputs: the input kinds the engine routes to ``on_input``; adaptive: the adaptive-R estimator or None; vb: the
+    variational-Bayes R estimator (zennav.nav.vbkf) or None; consistency: the consistency monitor
+    (zennav.nav.consistency) or None; R_used: R of the last update [unit^2];
     last_fused_t_ns: time of the last fused measurement (-1: never)."""
 
     inputs: tuple[str, ...] = ()
 
-    def __init__(self, name: str, adaptive: AdaptiveR | None = None, consistency: ConsistencyMonitor | None = None):
+    def __init__(self, name: str, adaptive: AdaptiveR | None = None, consistency: ConsistencyMonitor | None = None,
+                 vb: VariationalR | None = None):
         self.name = name
         self.adaptive = adaptive
+        self.vb = vb
         self.consistency = consistency
         self.R_used: np.ndarray | None = None
         self.last_fused_t_ns = -1
@@ -103,6 +109,8 @@ class AidSource:
         """The live measurement noise for nav/status: the adaptive estimate, else the R of the last update."""
         if self.adaptive is not None:
             return self.adaptive.status()
+        if self.vb is not None:
+            return self.vb.status()
         assert self.R_used is not None  # asked only once an update has set it (Navigator.status)
         return {"R": self.R_used.tolist()}
 
@@ -111,7 +119,8 @@ class AidSource:
         return {"R_used": None if self.R_used is None else self.R_used.tolist(),
                 "last_fused_t_ns": int(self.last_fused_t_ns),
                 "adaptive": None if self.adaptive is None else self.adaptive.get_state(),
-                "consistency": None if self.consistency is None else self.consistency.get_state()}
+                "consistency": None if self.consistency is None else self.consistency.get_state(),
+                **({} if self.vb is None else {"vb": self.vb.get_state()})}
 
     def set_state(self, state: dict) -> None:
         self.R_used = None if state["R_used"] is None else np.array(state["R_used"], dtype=float)
@@ -120,3 +129,5 @@ class AidSource:
             self.adaptive.set_state(state["adaptive"])
         if self.consistency is not None:
             self.consistency.set_state(state["consistency"])
+        if self.vb is not None:
+            self.vb.set_state(state["vb"])

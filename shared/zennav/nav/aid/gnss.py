@@ -35,6 +35,7 @@ from ..aiding import antenna_velocity, position_model, velocity_model
 from ..consistency import ConsistencyMonitor
 from ..eskf import POS, VEL
 from ..types import NS, GnssFix, GnssState, NavConfig
+from ..vbkf import variational_r
 from .base import AidSource, Measurement
 
 log = logging.getLogger("zennav.nav")
@@ -81,7 +82,8 @@ class GnssPosition(AidSource):
     inputs = ("gnss",)
 
     def __init__(self, config: NavConfig, t0_ns: int):
-        super().__init__("gnss_pos", adaptive_r(config), consistency_monitor(config, config.consistency_max_pos_m))
+        super().__init__("gnss_pos", adaptive_r(config), consistency_monitor(config, config.consistency_max_pos_m),
+                         variational_r(config, config.vb_gnss))
         self.config = config
         self.gnss_state = GnssState.VALID
         self.valid_t_ns = int(t0_ns)
@@ -277,7 +279,8 @@ class GnssVelocity(AidSource):
     inputs = ("gnss",)
 
     def __init__(self, config: NavConfig, t0_ns: int):
-        super().__init__("gnss_vel", adaptive_r(config), consistency_monitor(config, config.consistency_max_vel_mps))
+        super().__init__("gnss_vel", adaptive_r(config), consistency_monitor(config, config.consistency_max_vel_mps),
+                         variational_r(config, config.vb_gnss))
         self.config = config
 
     def on_input(self, nav, ctx: FixContext) -> bool:

@@ -24,11 +24,14 @@ from ..types import NavConfig
 
 
 class VehicleFrame:
-    """C_vb [-] and l_b [m, FRD] of a configuration (see the module docstring)."""
+    """C_vb [-] and l_b [m, FRD] of a configuration (see the module docstring); mount_euler [rad] / lever_b [m]:
+    another frame and point instead of the vehicle's (a DVL's frame d and lever arm: v_d and its Jacobian,
+    zennav.nav.aid.dvl)."""
 
-    def __init__(self, config: NavConfig):
-        self.C_vb = euler_to_dcm(np.asarray(config.vehicle_mount_euler, dtype=float)).T
-        self.lever_b = np.asarray(config.vehicle_lever_b, dtype=float)
+    def __init__(self, config: NavConfig, mount_euler=None, lever_b=None):
+        mount = config.vehicle_mount_euler if mount_euler is None else mount_euler
+        self.C_vb = euler_to_dcm(np.asarray(mount, dtype=float)).T
+        self.lever_b = np.asarray(config.vehicle_lever_b if lever_b is None else lever_b, dtype=float)
 
     def velocity(self, s: NavState, omega_ib_b: np.ndarray, n_states: int) -> tuple[np.ndarray, np.ndarray]:
         """v_v [m/s] of the constraint point at the state s with the bias-corrected body rate omega_ib_b [rad/s],
