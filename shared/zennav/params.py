@@ -29,7 +29,8 @@ ATTITUDE_PARAMS = DEPLOY_DIR / "attitude.yaml"
 SENSOR_FIELDS = ("imu_noise", "lever_arm_b", "dvl_tilt", "dvl_layout", "dvl_mount_euler", "dvl_lever_b",
                  "depth_surface_h_m", "has_dvl", "has_depth", "start_t_ns",
                  "end_t_ns")  # travel with the data (stream_start)
-SERVICE_FIELDS = ("learning",)  # set by the ins's --learning / replay's --compensation
+# set by the ins's --learning / replay's --compensation (dvl_learned: with the dvl_beam target)
+SERVICE_FIELDS = ("learning", "dvl_learned")
 
 
 class ParamError(ValueError):

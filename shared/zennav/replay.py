@@ -142,7 +142,8 @@ def run_replay(
     (zennav.nav.smoother) in result.smoothed. The dataset's odometer samples go to an engine
     with an odometer source (config.odometer) after the first IMU sample at or after their time, outages or not
     (replay only: the bus has no odometer stream yet)."""
-    config = ds.config.with_(learning=True) if compensator is not None else ds.config
+    config = ds.config if compensator is None else ds.config.with_(
+        learning=True, dvl_learned=getattr(compensator, "target", None) == "dvl_beam")
     nav = navigator or Navigator(config, ds.initial)
     rec = Recorder() if smoothing else None
     nav.recorder = rec
@@ -176,6 +177,8 @@ def run_replay(
                 prediction = compensator.predict(query)
                 if prediction is not None:
                     nav.on_correction(query, *prediction)
+                elif getattr(compensator, "last_refusal", ""):
+                    nav.on_refusal(query, compensator.last_refusal)
         s = nav.state
         t_out[i] = nav.t_ns
         out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)

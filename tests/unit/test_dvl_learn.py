@@ -109,3 +109,67 @@ def test_discrimination_compensates_a_bias_jump_and_leaves_clean_beams_alone():
 def test_rule_rejects_bad_thresholds():
     with pytest.raises(ValueError):
         AnomalyRule(min_count=6, window=5)
+
+
+def _underwater_nav():
+    """An engine with the learned tight DVL, 2.5 s after its start without GNSS (outage declared)."""
+    from zennav.nav.navigator import Navigator
+    from zennav.nav.types import NS, InitialState, NavConfig
+
+    t0 = 1000 * NS
+    nav = Navigator(NavConfig(has_dvl=True, learning=True, dvl_learned=True),
+                    InitialState(t0, np.array([0.5, 1.0, -20.0]), np.array([1.5, 0.0, 0.0]), np.zeros(3)))
+    for k in range(1, 251):
+        nav.on_imu(t0 + k * NS // 100, [0.0, 0.0, 0.0], [0.0, 0.0, -0.0980665])
+    assert nav.gnss_state != "valid"
+    return nav
+
+
+def _step(nav, n: int) -> None:
+    for _ in range(n):
+        nav.on_imu(nav.t_ns + 10_000_000, [0.0, 0.0, 0.0], [0.0, 0.0, -0.0980665])
+
+
+def _dvl(nav, bias=(0.0, 0.0, 0.0, 0.0)):
+    from zennav.nav.beams import janus_directions
+    from zennav.nav.types import DvlSample
+
+    B = janus_directions(nav.config.dvl_tilt, nav.config.dvl_layout)
+    beams = B @ (nav.state.C_nb.T @ nav.state.v_n) + np.asarray(bias)
+    return DvlSample(nav.t_ns, beams, np.ones(4, dtype=bool))
+
+
+def test_held_sample_is_fused_uncompensated_after_the_data_time_timeout():
+    """Under water a DVL sample waits for its 4 beam answers; none comes: fused as measured after
+    dvl_answer_timeout_s of data time, every beam counted no_answer."""
+    nav = _underwater_nav()
+    fused0 = nav.counters["dvl_fused"]
+    assert nav.on_aid("dvl", _dvl(nav)) is False
+    queries = nav.pop_queries()
+    assert [q.beam for q in queries] == [0, 1, 2, 3] and all(q.target == "dvl_beam" for q in queries)
+    assert queries[0].features.shape == (3,)
+    _step(nav, 49)  # 0.49 s: still held
+    assert nav.counters["dvl_fused"] == fused0 and nav.sources["dvl"].held is not None
+    _step(nav, 2)
+    assert nav.counters["dvl_fused"] == fused0 + 1 and nav.counters["dvl_learned_no_answer"] == 4
+    assert nav.sources["dvl"].held is None
+    report = [r for r in nav.pop_reports() if r.source == "dvl"][-1]
+    assert "learned_no_answer_1" in report.faults and "corrected" not in report.faults
+
+
+def test_answers_release_the_sample_and_the_rule_compensates_only_the_jumped_beam():
+    nav = _underwater_nav()
+    nav.pop_reports()
+    nav.on_aid("dvl", _dvl(nav, bias=np.array([0.0, 0.0, 0.3, 0.0])))  # beam 3 jumps by 0.3 m/s
+    queries = nav.pop_queries()
+    lam = queries[0].features[1]
+    assert lam > 13.3  # the jump fails the chi-square test (chi2 99 % of 4 dof)
+    for q in queries[:3]:
+        assert nav.on_correction(q, [0.3 if q.beam == 2 else 0.001], [0.01]) is False  # still waiting for beam 4
+    nav.on_refusal(queries[3], "off_domain")  # the last settles it: released now
+    c = nav.counters
+    assert c["dvl_learned_compensated"] == 1 and c["dvl_learned_normal"] == 2 and c["dvl_learned_refused"] == 1
+    report = [r for r in nav.pop_reports() if r.source == "dvl"][-1]
+    assert report.fused and "corrected" in report.faults and "learned_compensated_3" in report.faults
+    assert max(abs(x) for x in report.innovation) < 0.05  # the compensated beam agrees with the INS again
+    assert nav.sources["dvl"].status()["learned"]["compensated"] == 1

@@ -29,6 +29,7 @@ class InProcessLoop:
         self.core = PredictorCore(settings.max_domain_excess)
         self.version = 0  # of the last set made
         self.queries = 0  # queries received for the target
+        self.last_refusal = ""  # the reason the last query was refused ("": answered, or not this loop's target)
 
     def _fit_due(self) -> None:
         while (n := self.learner.due()) is not None:
@@ -47,14 +48,18 @@ class InProcessLoop:
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, tuple] | None:
         """The answer (value, 1-sigma per output) to a query, through the model trained through every sample so
-        far; None when refused (counted by reason in core.queries)."""
+        far; None when refused (counted by reason in core.queries; the reason in last_refusal)."""
+        self.last_refusal = ""
         if query.target != self.target:
             return None
         self.queries += 1
         self.learner.request(self.learner.received)
         self._fit_due()
         out = self.core.answer(query.target, query.features, self.learner.received)
-        return None if isinstance(out, str) else out[:2]
+        if isinstance(out, str):
+            self.last_refusal = out
+            return None
+        return out[:2]
 
     def status(self) -> dict[str, dict[str, int]]:
         """The counters the services put in their status messages: "trainer" (zennav.services.trainer: per target

@@ -13,8 +13,9 @@ sample with innovation Mahalanobis distance lambda_k = v' S^-1 v over its m used
                                                               the VB R has partly absorbed, lowering lambda)
 
 Compensated beam: measured - e_i. Thresholds in NavConfig (dvl_anomaly_*; deploy/ins.yaml, learning section).
-Decisions: "compensated", "normal" (answered, not anomalous), "no_answer" (no answer within the hold time, or the
-beam's answer refused or missing), "invalid" (the beam was not valid in the sample). Chi-square test: Mahalanobis
+Decisions: "compensated", "normal" (answered, not anomalous), "no_answer" (no answer within the hold time),
+"refused" (the predictor refused the beam's query: no model, off its domain, ...), "invalid" (the beam was not
+valid in the sample, or not queried). Chi-square test: Mahalanobis
 1936; its use for fault detection in Kalman filters: R. K. Mehra, J. Peschon, Automatica 7 (1971) 637-640.
 """
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 from .eskf import chi2_quantile
 
 N_BEAMS = 4
-DECISIONS = ("compensated", "normal", "no_answer", "invalid")
+DECISIONS = ("compensated", "normal", "no_answer", "refused", "invalid")
 
 
 @dataclass(frozen=True)
@@ -60,11 +61,13 @@ class BeamDiscriminator:
         self.counts: Counter[str] = Counter()
         self._chi2: dict[int, float] = {}
 
-    def decide(self, predicted, answered, valid, lam: float, R_diag, n_used: int) -> tuple[np.ndarray, list[str]]:
+    def decide(self, predicted, answered, valid, lam: float, R_diag, n_used: int,
+               missing=("no_answer",) * N_BEAMS) -> tuple[np.ndarray, list[str]]:
         """Corrections [m/s] (4,) to subtract from the measured beams and the decision per beam.
 
         predicted: (4,) predicted errors [m/s] (ignored where not answered); answered, valid: (4,) bool;
-        lam: lambda_k of the sample; R_diag: (4,) VB R_ii [(m/s)^2]; n_used: beams in the innovation (chi2 dof)."""
+        lam: lambda_k of the sample; R_diag: (4,) VB R_ii [(m/s)^2]; n_used: beams in the innovation (chi2 dof);
+        missing: the decision of a valid beam without an answer ("no_answer" or "refused")."""
         predicted, R_diag = np.asarray(predicted, dtype=float), np.asarray(R_diag, dtype=float)
         r = self.rule
         dof = max(int(n_used), 1)
@@ -76,7 +79,7 @@ class BeamDiscriminator:
             if not valid[i]:
                 decisions.append("invalid")
             elif not answered[i] or not (np.isfinite(predicted[i]) and np.isfinite(R_diag[i]) and R_diag[i] > 0):
-                decisions.append("no_answer")
+                decisions.append(missing[i])
             else:
                 large = abs(predicted[i]) > r.k_sigma * float(np.sqrt(R_diag[i]))
                 self.recent[i].append(large)

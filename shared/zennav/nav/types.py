@@ -298,6 +298,7 @@ class NavConfig:
     learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
     # learned DVL beam errors (zennav.nav.dvl_anomaly): hold time [s] of a sample waiting for its answers; the
     # anomaly rule: k-sigma of the VB R, chi-square probability of lambda, persistence window and count [samples]
+    dvl_learned: bool = False  # the tight DVL learns and compensates its beam errors (with learning; the service's)
     dvl_answer_timeout_s: float = 0.5
     dvl_anomaly_k_sigma: float = 3.0
     dvl_anomaly_probability: float = 0.99
