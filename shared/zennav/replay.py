@@ -139,9 +139,9 @@ def run_replay(
     at or after its time. A compensator (zennav.learn.loop) learns from the engine's training samples and
     answers its queries while GNSS is lost. on_epoch(nav) is called after each IMU epoch (progress, recording;
     it must not change the engine). smoothing: also the forward-backward smoothed solution
-    (zennav.nav.smoother) in result.smoothed. The dataset's odometer samples go to an engine
-    with an odometer source (config.odometer) after the first IMU sample at or after their time, outages or not
-    (replay only: the bus has no odometer stream yet)."""
+    (zennav.nav.smoother) in result.smoothed. The dataset's aid streams (``aid_streams``: odometer, DVL, depth) go
+    to the engine's sources that take them after the first IMU sample at or after their time, in time order, outages
+    or not (replay only: the bus has no such streams yet)."""
     config = ds.config if compensator is None else ds.config.with_(
         learning=True, dvl_learned=getattr(compensator, "target", None) == "dvl_beam")
     nav = navigator or Navigator(config, ds.initial)
@@ -149,10 +149,7 @@ def run_replay(
     nav.recorder = rec
     imu, gnss = ds.imu, ds.gnss
     windows, events = sensor_events(ds, outages, outage_every)
-    odo = ds.odometer if ds.odometer is not None and "odo" in nav.sources else None
-    odo_t = [] if odo is None else odo.t_ns.tolist()
-    odo_speed = [] if odo is None else odo.speed_mps.tolist()
-    j, n_odo = int(np.searchsorted(odo_t, nav.t_ns, side="right")), len(odo_t)
+    streams = aid_streams(ds, nav)
     n = sum(1 for kind, _ in events if kind == "imu")
     t_out = np.empty(n, dtype=np.int64)
     out = np.empty((n, 10))
@@ -168,9 +165,8 @@ def run_replay(
             nav.on_gnss(gnss.fix_at(k))
             continue
         nav.on_imu(t_list[k], dtheta[k], dvel[k])
-        while j < n_odo and odo_t[j] <= t_list[k]:
-            nav.on_aid("odometer", OdometerSample(odo_t[j], odo_speed[j]))
-            j += 1
+        if streams:
+            streams.feed(nav, t_list[k])
         if compensator is not None:  # answers fused at this sample are in its solution, as the ins publishes it
             compensator.add(nav.pop_samples())
             for query in nav.pop_queries():
@@ -208,6 +204,46 @@ def run_replay(
     if rec is not None:
         res.smoothing, res.smoothed = smoothed_result(res, rec)
     return res
+
+
+class AidStreams:
+    """The dataset's aid streams that the engine takes, fed in time order up to each IMU time (run_replay):
+    (input kind, sample times [ns], sample k -> the sample object) per stream, each with its next index."""
+
+    def __init__(self, streams: list[tuple[str, list[int], Callable[[int], object]]], t0_ns: int):
+        self.streams = streams
+        self.next = [int(np.searchsorted(t, t0_ns, side="right")) for _, t, _ in streams]
+
+    def __bool__(self) -> bool:
+        return bool(self.streams)
+
+    def feed(self, nav: Navigator, t_ns: int) -> None:
+        """Hand the engine every sample at or before t_ns not yet handed, earliest first (ties: stream order)."""
+        while True:
+            best, best_t = -1, t_ns + 1
+            for i, (_, times, _) in enumerate(self.streams):
+                j = self.next[i]
+                if j < len(times) and times[j] < best_t:
+                    best, best_t = i, times[j]
+            if best < 0:
+                return
+            kind, _, sample = self.streams[best]
+            nav.on_aid(kind, sample(self.next[best]))
+            self.next[best] += 1
+
+
+def aid_streams(ds: Dataset, nav: Navigator) -> AidStreams:
+    """The dataset's odometer, DVL and depth samples for the engine's sources that take them (their input kinds)."""
+    kinds = {kind for src in nav.sources.values() for kind in src.inputs}
+    streams: list[tuple[str, list[int], Callable[[int], object]]] = []
+    if ds.odometer is not None and "odometer" in kinds:
+        odo_t, odo_speed = ds.odometer.t_ns.tolist(), ds.odometer.speed_mps.tolist()
+        streams.append(("odometer", odo_t, lambda k: OdometerSample(odo_t[k], odo_speed[k])))
+    if ds.dvl is not None and "dvl" in kinds:
+        streams.append(("dvl", ds.dvl.t_ns.tolist(), ds.dvl.sample))
+    if ds.depth is not None and "depth" in kinds:
+        streams.append(("depth", ds.depth.t_ns.tolist(), ds.depth.sample))
+    return AidStreams(streams, nav.t_ns)
 
 
 def smoothed_result(res: ReplayResult, rec: Recorder) -> tuple[Smoothed, ReplayResult]:

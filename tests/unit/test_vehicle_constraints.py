@@ -171,7 +171,7 @@ def test_comma2k19_has_rear_wheel_speeds():
 
 def test_profiles_are_parsed_and_applied(tmp_path):
     assert load_profiles() == {"car": ("nhc", "zupt", "odo"), "multirotor": ("zupt",), "fixed-wing": (),
-                               "pedestrian": ("zupt",)}
+                               "pedestrian": ("zupt",), "auv": ()}
     assert constraint_flags(["zupt"]) == {"nhc": False, "zupt": True, "odometer": False}
     shipped = load_filter_params()
     assert not (shipped["nhc"] or shipped["zupt"] or shipped["odometer"])  # profile none: the switches, all off

@@ -8,7 +8,7 @@ from zennav.datasets.errors import DataError
 from zennav.nav.types import Dataset
 
 RECORDINGS = {"rtklibexplorer": "rtklibexplorer_drive_0708", "comma2k19": "comma2k19_example_segment"}
-SIM_KINDS = ("car", "multirotor", "static")
+SIM_KINDS = ("car", "multirotor", "static", "auv")
 ANSFL_FOLDER = "ansfl_quadrotor_dji_rtk"
 ANSFL_FLIGHTS = {"Horizontal": 27, "Vertical": 30, "StraightLine": 4}  # ansfl:<group>/path_1..N
 ANSFL_ACCEPTED = ", ".join(f"ansfl:{group}/path_1..{n}" for group, n in ANSFL_FLIGHTS.items())
@@ -20,7 +20,7 @@ ACCEPTED = (
 
 # The vehicle of each named dataset: its profile in the ins parameter file (zennav replay --profile dataset).
 VEHICLES = {"rtklibexplorer": "car", "comma2k19": "car", "sim:car": "car", "sim:multirotor": "multirotor",
-            "ansfl:": "multirotor"}
+            "ansfl:": "multirotor", "sim:auv": "auv"}
 
 
 def vehicle_of(spec: str) -> str:
@@ -104,6 +104,10 @@ def load_dataset(spec: str, **options) -> Dataset:
         kind = spec[4:]
         if kind not in SIM_KINDS:
             raise DataError(spec, f"unknown simulator scenario; accepted: {', '.join(SIM_KINDS)}")
+        if kind == "auv":
+            from zennav.sim.auv import make_auv_dataset
+
+            return make_auv_dataset(**options)
         from zennav.sim.scenarios import make_dataset
 
         return make_dataset(kind, **options)

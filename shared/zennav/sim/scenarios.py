@@ -49,6 +49,7 @@ class ImuGrade:
 
 IMU_GRADES = {
     "ideal": ImuGrade(0.0, 0.0, 0.0, 0.0, 3600.0, (0.5, 2.0)),
+    "navigation": ImuGrade(0.003, 0.005, 0.01, 0.025, 3600.0, (0.02, 0.1)),
     "tactical": ImuGrade(0.1, 0.05, 1.0, 0.1, 3600.0, (0.1, 0.5)),
     "mems": ImuGrade(0.3, 0.2, 10.0, 1.0, 3600.0, (0.5, 2.0)),
     "consumer": ImuGrade(1.0, 0.5, 100.0, 5.0, 1800.0, (1.0, 5.0)),

@@ -1,4 +1,4 @@
-"""Sensors riding a Trajectory: ideal and noisy IMU increments, GNSS antenna fixes.
+"""Sensors riding a Trajectory: ideal and noisy IMU increments, GNSS antenna fixes, odometer, DVL beams, depth.
 
 Frames and units (README.md, Conventions): n = NED, b = FRD, SI and radians; times t_s in seconds since the
 trajectory start, message times t_ns in integer GPS nanoseconds with t0_ns the time of t_s = 0.
@@ -17,7 +17,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..nav import earth
-from ..nav.types import NS, FixType, GnssData, ImuData, ImuNoise, OdometerData
+from ..nav.types import NS, DepthData, DvlData, FixType, GnssData, ImuData, ImuNoise, OdometerData
 from .trajectory import Trajectory, TrajectoryState
 
 
@@ -147,3 +147,62 @@ def simulate_odometer(traj: Trajectory, t_ns, t0_ns: int, scale_error: float, st
     v_b = _to_body(st.C_nb, st.v_n) + np.cross(st.omega_nb_b, np.asarray(lever_arm_b, dtype=float))
     speed = (1.0 + scale_error) * v_b[:, 0] + std_mps * rng.standard_normal(len(t_ns))
     return OdometerData(t_ns, speed)
+
+
+@dataclass
+class DvlErrors:
+    """What a simulated DVL injects (simulate_dvl): per-beam constant bias [m/s] (4,), scale-factor error [-], white
+    noise 1-sigma [m/s]; per sample and beam: dropout probability, outlier probability and size [m/s] (uniform
+    +-1..2 times it); windows [(start_s, end_s)] of bottom loss (all beams invalid) and of noise bursts (noise times
+    burst_factor); a bias jump (start_s, beam index 0..3, size [m/s]) or None."""
+
+    bias_mps: np.ndarray
+    scale_error: float = 0.0
+    noise_mps: float = 0.0
+    dropout_prob: float = 0.0
+    outlier_prob: float = 0.0
+    outlier_mps: float = 1.0
+    bottom_loss: tuple = ()
+    bursts: tuple = ()
+    burst_factor: float = 10.0
+    bias_jump: tuple | None = None
+
+
+def dvl_velocity(traj: Trajectory, t_s, C_db: np.ndarray, lever_b) -> np.ndarray:
+    """Exact velocity over the bottom of the DVL point at lever_b [m, FRD] in the DVL frame d (N, 3) [m/s]:
+    v_d = C_db (C_bn v_n + omega_nb_b x l_b) (zennav.nav.beams)."""
+    st = traj.state(t_s)
+    return (_to_body(st.C_nb, st.v_n) + np.cross(st.omega_nb_b, np.asarray(lever_b, dtype=float))) @ C_db.T
+
+
+def simulate_dvl(traj: Trajectory, t_ns, t0_ns: int, B: np.ndarray, C_db: np.ndarray, lever_b, errors: DvlErrors,
+                 rng: np.random.Generator) -> tuple[DvlData, np.ndarray]:
+    """Janus DVL beams at times t_ns: v_beam = (1 + scale) B v_d + bias (+ jump) + noise, with dropouts, outliers,
+    noise bursts and bottom loss as ``errors`` says (B: beam unit vectors in d (4 x 3), C_db, lever_b [m]). Returns the
+    data and the exact beam velocities (N, 4) [m/s] (the truth the learned compensation targets)."""
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    t_s = _seconds(t_ns, t0_ns)
+    n = len(t_ns)
+    true_beams = dvl_velocity(traj, t_s, C_db, lever_b) @ B.T
+    bias = np.tile(np.asarray(errors.bias_mps, dtype=float), (n, 1))
+    if errors.bias_jump is not None:
+        start, beam, size = errors.bias_jump
+        bias[t_s >= start, int(beam)] += size
+    noise_std = np.full(n, errors.noise_mps)
+    for a, b in errors.bursts:
+        noise_std[(t_s >= a) & (t_s < b)] *= errors.burst_factor
+    beams = (1.0 + errors.scale_error) * true_beams + bias + noise_std[:, None] * rng.standard_normal((n, 4))
+    outlier = rng.uniform(size=(n, 4)) < errors.outlier_prob
+    beams += outlier * errors.outlier_mps * rng.uniform(1.0, 2.0, (n, 4)) * rng.choice([-1.0, 1.0], (n, 4))
+    valid = rng.uniform(size=(n, 4)) >= errors.dropout_prob
+    for a, b in errors.bottom_loss:
+        valid[(t_s >= a) & (t_s < b)] = False
+    return DvlData(t_ns, np.where(valid, beams, np.nan), valid), true_beams
+
+
+def simulate_depth(traj: Trajectory, t_ns, t0_ns: int, h_surface: float, bias_m: float, std_m: float,
+                   rng: np.random.Generator) -> DepthData:
+    """Pressure depth of the IMU point at times t_ns: h_surface - h + bias_m + white noise std_m [m]."""
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    h = traj.llh(_seconds(t_ns, t0_ns))[:, 2]
+    return DepthData(t_ns, h_surface - h + bias_m + std_m * rng.standard_normal(len(t_ns)))

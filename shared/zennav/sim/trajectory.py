@@ -485,11 +485,82 @@ def multirotor_trajectory(duration_s: float, seed=0, start_llh=(0.5328, 1.9959, 
     return MultirotorTrajectory(start_llh, duration_s, rate, seg, path_arr, yaw)
 
 
+def auv_trajectory(duration_s: float, seed=0, start_llh=(0.5328, 1.9959, 0.0), surface_s: float = 120.0,
+                   max_depth_m: float = 50.0, min_speed: float = 1.0, max_speed: float = 3.0,
+                   max_turn_rate: float = np.deg2rad(5.0), dive_pitch: float = np.deg2rad(15.0)) -> CarTrajectory:
+    """Random AUV mission of duration_s [s] picked by seed, starting at the surface (start_llh's height is the water
+    surface): 3 s still, speed-up to 1.5 m/s, surface manoeuvres (turns of 20-60 m radius) until surface_s [s], then
+    a dive at dive_pitch [rad] to 40-100 % of max_depth_m [m], and under water: straight legs, turns of 90-180 deg at
+    up to max_turn_rate [rad/s], speed changes within [min_speed, max_speed] [m/s] and depth changes of 5-15 m at
+    5-10 deg pitch, between 5 m and max_depth_m. The vehicle flies without sideslip (pitch = flight-path angle, a small
+    roll into turns): a CarTrajectory whose "grade" is the flight-path angle (negative: diving)."""
+    rng = np.random.default_rng(seed)
+    tr: dict[str, list[tuple[float, float, float]]] = {"speed": [], "turn": [], "grade": []}
+    t, v, height = 3.0, 0.0, 0.0
+
+    def speed_to(v1, accel):
+        nonlocal t, v
+        T = max(_S_MAX_SLOPE * abs(v1 - v) / accel, 1.0)
+        tr["speed"].append((t, T, v1 - v))
+        t, v = t + T, v1
+
+    def turn(angle, radius):
+        nonlocal t
+        rate, ramp, hold = _ramp(min(v / radius, max_turn_rate), abs(angle), 3.0)
+        sign = math.copysign(1.0, angle)
+        tr["turn"] += [(t, ramp, sign * rate), (t + ramp + hold, ramp, -sign * rate)]
+        t += 2.0 * ramp + hold
+
+    def climb(dh, pitch):  # height change dh [m] at flight-path angle pitch [rad] (its sign from dh)
+        nonlocal t, height
+        g = math.copysign(pitch, dh)
+        ramp = 5.0
+        hold = max(abs(dh) / (v * math.sin(pitch)) - ramp, 1.0)
+        tr["grade"] += [(t, ramp, g), (t + ramp + hold, ramp, -g)]
+        t += 2.0 * ramp + hold
+        height += v * math.sin(g) * (ramp + hold)
+
+    speed_to(1.5, 0.2)
+    while t < surface_s - 40.0:  # surface manoeuvres
+        t += rng.uniform(5.0, 15.0)
+        if t < surface_s - 40.0:
+            turn(np.deg2rad(rng.uniform(45.0, 120.0)) * rng.choice([-1.0, 1.0]), rng.uniform(20.0, 60.0))
+    t = max(t, surface_s)
+    climb(-rng.uniform(0.4, 1.0) * max_depth_m, dive_pitch)
+    while True:
+        saved = (t, v, height, {k: len(x) for k, x in tr.items()})
+        action = rng.choice(["leg", "turn", "speed", "depth"], p=[0.3, 0.3, 0.2, 0.2])
+        if action == "leg":
+            t += rng.uniform(20.0, 60.0)
+        elif action == "turn":
+            turn(np.deg2rad(rng.choice([90.0, 180.0])) * rng.choice([-1.0, 1.0]), rng.uniform(15.0, 40.0))
+        elif action == "speed":
+            speed_to(rng.uniform(min_speed, max_speed), rng.uniform(0.1, 0.3))
+        else:
+            target = -rng.uniform(5.0, max_depth_m)
+            if abs(target - height) >= 5.0:
+                climb(float(np.clip(target - height, -15.0, 15.0)), np.deg2rad(rng.uniform(5.0, 10.0)))
+        if t > duration_s:  # no room: undo and cruise to the end
+            t, v, height, lengths = saved
+            for k, n in lengths.items():
+                del tr[k][n:]
+            break
+
+    def profile(name):
+        return SmoothSteps(0.0, *np.array(tr[name]).reshape(-1, 3).T)
+
+    return CarTrajectory(start_llh, duration_s, profile("speed"), profile("turn"), profile("grade"),
+                         rng.uniform(-np.pi, np.pi), np.deg2rad(0.2))
+
+
 def make_trajectory(kind: str, duration_s: float, seed=0, start_llh=(0.5328, 1.9959, 30.0), **kw) -> Trajectory:
-    """Trajectory of kind "car", "multirotor" or "static"; start_llh (lat, lon [rad], h [m]); seed an int or
-    SeedSequence (unused by "static"); kw go to car_trajectory / multirotor_trajectory / StaticTrajectory."""
+    """Trajectory of kind "car", "multirotor", "auv" or "static"; start_llh (lat, lon [rad], h [m]); seed an int or
+    SeedSequence (unused by "static"); kw go to car_trajectory / multirotor_trajectory / auv_trajectory /
+    StaticTrajectory."""
     if kind == "car":
         return car_trajectory(duration_s, seed, start_llh, **kw)
+    if kind == "auv":
+        return auv_trajectory(duration_s, seed, start_llh, **kw)
     if kind == "multirotor":
         return multirotor_trajectory(duration_s, seed, start_llh, **kw)
     if kind == "static":
