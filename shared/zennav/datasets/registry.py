@@ -12,26 +12,35 @@ SIM_KINDS = ("car", "multirotor", "static", "auv")
 ANSFL_FOLDER = "ansfl_quadrotor_dji_rtk"
 ANSFL_FLIGHTS = {"Horizontal": 27, "Vertical": 30, "StraightLine": 4}  # ansfl:<group>/path_1..N
 ANSFL_ACCEPTED = ", ".join(f"ansfl:{group}/path_1..{n}" for group, n in ANSFL_FLIGHTS.items())
+AKIT_FOLDER = "akit_snapir_auv_dvl"
+AKIT_TRAJECTORIES = 13  # akit:Trajectory1..13
+AKIT_ACCEPTED = f"akit:Trajectory1..{AKIT_TRAJECTORIES}"
 ACCEPTED = (
-    f"{', '.join(RECORDINGS)}, {ANSFL_ACCEPTED}, a KF-GINS .yaml/.yml file, a dataset folder, or "
+    f"{', '.join(RECORDINGS)}, {ANSFL_ACCEPTED}, {AKIT_ACCEPTED}, a KF-GINS .yaml/.yml file, a dataset folder, or "
     + ", ".join(f"sim:{kind}" for kind in SIM_KINDS)
 )
 
 
 # The vehicle of each named dataset: its profile in the ins parameter file (zennav replay --profile dataset).
 VEHICLES = {"rtklibexplorer": "car", "comma2k19": "car", "sim:car": "car", "sim:multirotor": "multirotor",
-            "ansfl:": "multirotor", "sim:auv": "auv"}
+            "ansfl:": "multirotor", "sim:auv": "auv", "akit:": "auv"}
 
 
 def vehicle_of(spec: str) -> str:
-    """The vehicle profile of a dataset spec (VEHICLES; ansfl:* flights are multirotors); "none" when unknown
-    (sim:static, dataset folders, KF-GINS files)."""
-    return VEHICLES.get(spec, VEHICLES["ansfl:"] if spec.startswith("ansfl:") else "none")
+    """The vehicle profile of a dataset spec (VEHICLES; ansfl:* flights are multirotors, akit:* trajectories
+    AUVs); "none" when unknown (sim:static, dataset folders, KF-GINS files)."""
+    prefix = next((p for p in ("ansfl:", "akit:") if spec.startswith(p)), None)
+    return VEHICLES.get(spec, "none" if prefix is None else VEHICLES[prefix])
 
 
 def ansfl_specs() -> list[str]:
     """Every ansfl:<group>/path_<n> spec, in order."""
     return [f"ansfl:{group}/path_{k}" for group, n in ANSFL_FLIGHTS.items() for k in range(1, n + 1)]
+
+
+def akit_specs() -> list[str]:
+    """Every akit:TrajectoryN spec, in order."""
+    return [f"akit:Trajectory{n}" for n in range(1, AKIT_TRAJECTORIES + 1)]
 
 
 def data_root() -> Path:
@@ -100,6 +109,12 @@ def load_dataset(spec: str, **options) -> Dataset:
         from zennav.datasets import ansfl
 
         return ansfl.load(data_root() / ANSFL_FOLDER / spec[6:], **options)
+    if spec.startswith("akit:"):
+        if spec not in akit_specs():
+            raise DataError(spec, f"unknown A-KIT trajectory; accepted: {AKIT_ACCEPTED}")
+        from zennav.datasets import akit
+
+        return akit.load(data_root() / AKIT_FOLDER / spec[5:], **options)
     if spec.startswith("sim:"):
         kind = spec[4:]
         if kind not in SIM_KINDS:
@@ -120,12 +135,13 @@ def load_dataset(spec: str, **options) -> Dataset:
 
 
 def available() -> list[str]:
-    """Specs that load_dataset accepts right now: the recordings and ANSFL flights present in data_root() and the
-    simulator scenarios."""
+    """Specs that load_dataset accepts right now: the recordings, ANSFL flights and A-KIT trajectories present in
+    data_root() and the simulator scenarios."""
     try:
         root = data_root()
     except DataError:
         root = None
     recordings = [name for name, folder in RECORDINGS.items() if root is not None and (root / folder).is_dir()]
     flights = [spec for spec in ansfl_specs() if root is not None and (root / ANSFL_FOLDER / spec[6:]).is_dir()]
-    return recordings + flights + [f"sim:{kind}" for kind in SIM_KINDS]
+    auv = [spec for spec in akit_specs() if root is not None and (root / AKIT_FOLDER / spec[5:]).is_dir()]
+    return recordings + flights + auv + [f"sim:{kind}" for kind in SIM_KINDS]
