@@ -1,0 +1,134 @@
+"""DVL fusion on the A-KIT AUV trajectories (zennav replay akit:TrajectoryN): loose EKF, tight EKF, tight VBKF, ...
+one row per trajectory x method, against the reference (a post-processed Phins solution, not independent of the
+IMU/DVL: see zennav.datasets.akit).
+
+Each run is the product's replay (zennav.replay.run_replay, the engine's own DVL and depth sources) of the loader's
+dataset: the IMU shifted by the estimated skew, the derived DVL beams (and velocity for the loose filter), the
+derived depth, and derived GNSS fixes during the first --gnss-s seconds only ("at the surface"; 0: none, the whole
+run under water from the reference's initial state). Figures per row:
+- RMSE: horizontal position RMS over the whole run [m] (zennav.metrics.evaluate at the reference rows);
+- final: horizontal error at the last reference row [m];
+- drift: final / horizontal distance travelled since the last GNSS fix (the start when none) [%].
+A first table describes the data of each trajectory: the estimated IMU/reference skew [s], the distance travelled
+[m], the yaw travel (sum of |heading change| between reference rows, waves included) [rad], and the gyro-only
+attitude RMS error [deg] against the reference (large: the IMU and the reference disagree beyond what the filter
+can fix: bad data, not a bad filter).
+
+METHODS is the one list of what is compared: name -> run(dataset) -> ReplayResult. Another method (e.g. a learned
+compensation) is one more entry.
+
+    .venv/bin/python benchmarks/akit_dvl.py [--trajectories 1-13] [--methods "loose EKF,tight EKF"] [--gnss-s 60]
+        [--anomalies all --anomalies-from-s 60] [--seed 0]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+from zennav.datasets.akit import gyro_attitude
+from zennav.datasets.registry import akit_specs, load_dataset
+from zennav.metrics import evaluate, ned_errors
+from zennav.nav import earth
+from zennav.nav.rotation import wrap_angle
+from zennav.nav.types import Dataset
+from zennav.replay import ReplayResult, run_replay
+
+
+def _with_config(**settings) -> Callable[[Dataset], ReplayResult]:
+    """A method that replays the dataset with these NavConfig settings."""
+    return lambda ds: run_replay(replace(ds, config=ds.config.with_(**settings)))
+
+
+METHODS: dict[str, Callable[[Dataset], ReplayResult]] = {
+    "loose EKF": _with_config(dvl_mode="loose", vb_dvl=False),
+    "tight EKF": _with_config(dvl_mode="tight", vb_dvl=False),
+    "tight VBKF": _with_config(dvl_mode="tight", vb_dvl=True),
+}
+
+
+def score(ds: Dataset, res: ReplayResult) -> dict:
+    """RMSE [m], final horizontal error [m], distance since the last GNSS fix [m] and drift [%] of a run."""
+    m = evaluate(ds, res)
+    truth = ds.truth
+    assert truth is not None
+    end = int(np.searchsorted(truth.t_ns, res.t_ns[-1], side="right")) - 1
+    est = np.array([np.interp(truth.t_ns[end], res.t_ns, res.llh[:, i]) for i in range(3)])
+    final = float(np.hypot(*ned_errors(est[None], truth.llh[end][None])[0, :2]))
+    t_from = int(ds.gnss.t_ns[-1]) if len(ds.gnss) else int(res.t_ns[0])
+    rows = (truth.t_ns >= t_from) & (truth.t_ns <= truth.t_ns[end])
+    ned = earth.llh_to_ned(truth.llh[rows], truth.llh[rows][0])
+    distance = float(np.sum(np.hypot(*np.diff(ned[:, :2], axis=0).T)))
+    return {"rmse_m": m["horizontal_rms_m"], "final_m": final, "distance_m": distance,
+            "drift_pct": 100.0 * final / distance if distance > 0 else math.nan, "engine": m["engine"]}
+
+
+def data_quality(ds: Dataset) -> dict:
+    """Skew [s], distance [m], yaw travel [rad] and gyro-only attitude RMS [deg] of a trajectory."""
+    truth = ds.truth
+    assert truth is not None and truth.euler is not None
+    t, euler = gyro_attitude(ds.imu, ds.initial.t_ns, ds.initial.euler, float(ds.initial.llh[0]))
+    rows = (truth.t_ns > t[0]) & (truth.t_ns <= t[-1])
+    k = np.searchsorted(t, truth.t_ns[rows])
+    rms = np.degrees(np.sqrt(np.mean(wrap_angle(euler[k] - truth.euler[rows]) ** 2, axis=0)))
+    ned = earth.llh_to_ned(truth.llh, truth.llh[0])
+    return {"skew_s": ds.notes["skew_s"], "distance_m": float(np.sum(np.hypot(*np.diff(ned[:, :2], axis=0).T))),
+            "turn_rad": float(np.sum(np.abs(np.diff(np.unwrap(truth.euler[:, 2]))))), "gyro_rms_deg": rms}
+
+
+def _trajectories(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b or a) + 1))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--trajectories", default=f"1-{len(akit_specs())}", help="e.g. 1-13 or 2,12,13")
+    ap.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated of: {', '.join(METHODS)}")
+    ap.add_argument("--gnss-s", type=float, default=60.0, help="derived GNSS fixes during the first S seconds")
+    ap.add_argument("--anomalies", default=None, help="DVL anomaly spec (zennav.datasets.dvl_anomalies)")
+    ap.add_argument("--anomalies-from-s", type=float, default=None, help="[s from the start; default --gnss-s]")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    methods = [m.strip() for m in args.methods.split(",")]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        ap.error(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
+    options = {"gnss_s": args.gnss_s, "seed": args.seed}
+    if args.anomalies:
+        options |= {"anomalies": args.anomalies, "anomalies_from_s": args.anomalies_from_s
+                    if args.anomalies_from_s is not None else args.gnss_s}
+    print(f"A-KIT, derived GNSS during the first {args.gnss_s:g} s"
+          + (f", DVL anomalies {args.anomalies!r} (seed {args.seed})" if args.anomalies else ", clean DVL"))
+    print(f"{'trajectory':<13}{'skew s':>8}{'dist m':>8}{'yaw travel rad':>15}{'gyro-only r/p/y RMS deg':>26}")
+    datasets = {}
+    for n in _trajectories(args.trajectories):
+        ds = datasets[n] = load_dataset(f"akit:Trajectory{n}", **options)
+        q = data_quality(ds)
+        print(f"Trajectory{n:<3}{q['skew_s']:>+8.3f}{q['distance_m']:>8.0f}{q['turn_rad']:>15.2f}"
+              f"{'/'.join(f'{x:.2f}' for x in q['gyro_rms_deg']):>26}", flush=True)
+    print(f"\n{'trajectory':<13}{'method':<22}{'RMSE m':>9}{'final m':>9}{'drift %':>9}{'DVL fused':>10}")
+    results: dict[str, list[dict]] = {m: [] for m in methods}
+    for n, ds in datasets.items():
+        for name in methods:
+            s = score(ds, METHODS[name](ds))
+            results[name].append(s)
+            counters = s["engine"]["counters"]
+            fused = counters.get("dvl_fused", 0) + counters.get("dvl_loose_fused", 0)
+            print(f"Trajectory{n:<3}{name:<22}{s['rmse_m']:>9.2f}{s['final_m']:>9.2f}{s['drift_pct']:>9.3f}"
+                  f"{fused:>10}", flush=True)
+    print(f"\n{'all':<13}{'method':<22}{'RMSE m':>9}{'final m':>9}{'drift %':>9}   (means over the trajectories)")
+    for name, rows in results.items():
+        print(f"{'mean':<13}{name:<22}{np.mean([r['rmse_m'] for r in rows]):>9.2f}"
+              f"{np.mean([r['final_m'] for r in rows]):>9.2f}{np.mean([r['drift_pct'] for r in rows]):>9.3f}"
+              f"   median drift {np.median([r['drift_pct'] for r in rows]):.3f} %")
+
+
+if __name__ == "__main__":
+    main()
