@@ -173,3 +173,44 @@ def test_answers_release_the_sample_and_the_rule_compensates_only_the_jumped_bea
     assert report.fused and "corrected" in report.faults and "learned_compensated_3" in report.faults
     assert max(abs(x) for x in report.innovation) < 0.05  # the compensated beam agrees with the INS again
     assert nav.sources["dvl"].status()["learned"]["compensated"] == 1
+
+
+def test_replay_on_a_short_simulated_auv_trains_at_the_surface_and_answers_under_water():
+    """The in-process loop of `zennav replay --target dvl_beam --compensation anfis-ipso` on sim:auv: training
+    samples only while GNSS is valid, queries only under water, answered by a model trained at the surface, a
+    bias jump on beam 2 under water compensated, every decision counted."""
+    pytest.importorskip("torch")
+    from dataclasses import replace
+
+    from zennav.learn.loop import InProcessLoop
+    from zennav.learn.settings import LearnSettings
+    from zennav.replay import run_replay
+    from zennav.sim.auv import make_auv_dataset
+
+    ds = make_auv_dataset(duration_s=140.0, seed=1, surface_s=90.0, dvl_bottom_loss="", dvl_bias_jump="110:2:0.3")
+    ds = replace(ds, config=ds.config.with_(vb_dvl=True))
+    loop = InProcessLoop("dvl_beam", LearnSettings(optimizer="ipso", max_epochs=3, retrain_samples=10**6, seed=0))
+    seen: dict[str, list] = {"samples": [], "queries": []}
+    add, predict = loop.add, loop.predict
+
+    def spy_add(samples):
+        seen["samples"] += [s.t_ns for s in samples if s.target == "dvl_beam"]
+        add(samples)
+
+    def spy_predict(query):
+        if query.target == "dvl_beam":
+            seen["queries"].append(query.t_ns)
+        return predict(query)
+
+    loop.add, loop.predict = spy_add, spy_predict  # type: ignore[method-assign]
+    res = run_replay(ds, compensator=loop)
+    under = res.t_ns[res.outage]
+    t_dive = int(under[0])
+    assert seen["samples"] and max(seen["samples"]) < t_dive
+    assert seen["queries"] and min(seen["queries"]) >= t_dive
+    st = loop.status()
+    assert st["trainer"]["sets_dvl_beam"] >= 1 and st["predictor"]["queries_answered"] > 100
+    c = res.status["counters"]
+    decided = sum(c.get(f"dvl_learned_{d}", 0) for d in ("compensated", "normal", "no_answer", "refused"))
+    assert decided == len(seen["queries"])
+    assert c.get("dvl_learned_compensated", 0) > 0 and c.get("dvl_learned_normal", 0) > 0
