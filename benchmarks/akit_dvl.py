@@ -45,7 +45,8 @@ import numpy as np
 
 from zennav.datasets.akit import gyro_attitude
 from zennav.datasets.registry import akit_specs, load_dataset
-from zennav.learn.loop import make_compensator
+from zennav.learn.loop import InProcessLoop, make_compensator
+from zennav.learn.settings import compensation_settings
 from zennav.metrics import evaluate, ned_errors
 from zennav.nav import earth
 from zennav.nav.rotation import wrap_angle
@@ -66,13 +67,15 @@ METHODS: dict[str, Callable[[Dataset], ReplayResult]] = {
 LEARNED = "tight VBKF + PSO-ANFIS"  # needs a trained model (train_dvl_model); added to METHODS by main
 LEARNED_COMPENSATION = "anfis-ipso"  # seed 003's improved PSO (zennav.learn.pso.IMPROVED)
 LEARNED_CONFIG = {"dvl_mode": "tight", "vb_dvl": True}
+TRAIN_WINDOW = 50_000  # samples: every training sample of 11 dives (4 beams x 1 Hz x 400 s each at most)
 
 
 def train_dvl_model(trajectories: list[int], options: dict, seed: int, path) -> dict:
     """Replay the training trajectories through one learning loop (module docstring) and write its last set to
     path; returns the loop's status counters."""
-    loop = make_compensator(LEARNED_COMPENSATION, "dvl_beam", seed)
-    assert loop is not None
+    # all the training samples in one fit at the end (the default window keeps the newest 2000: two dives)
+    loop = InProcessLoop("dvl_beam", compensation_settings(LEARNED_COMPENSATION, seed).with_(
+        window=TRAIN_WINDOW, retrain_samples=TRAIN_WINDOW))
     for n in trajectories:
         ds = load_dataset(f"akit:Trajectory{n}", **options)
         run_replay(replace(ds, config=ds.config.with_(**LEARNED_CONFIG)), compensator=loop)

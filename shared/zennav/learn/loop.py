@@ -52,7 +52,12 @@ class InProcessLoop:
             self.last_set = msg
 
     def save_model(self, path) -> None:
-        """Write the last parameter set (msgpack, zennav.learn.paramset.encode); ValueError when none was made."""
+        """Write a parameter set trained through every sample received (fitted now where newer samples arrived
+        since the last set, as a query would; msgpack, zennav.learn.paramset.encode); ValueError when none can be
+        made."""
+        if not self.frozen and self.learner.received >= self.learner.min_samples:
+            self.learner.request(self.learner.received)
+            self._fit_due()
         if self.last_set is None:
             raise ValueError(f"no {self.target} model was trained: nothing to save")
         Path(path).write_bytes(paramset.encode(self.last_set))
