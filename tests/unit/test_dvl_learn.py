@@ -214,3 +214,56 @@ def test_replay_on_a_short_simulated_auv_trains_at_the_surface_and_answers_under
     decided = sum(c.get(f"dvl_learned_{d}", 0) for d in ("compensated", "normal", "no_answer", "refused"))
     assert decided == len(seen["queries"])
     assert c.get("dvl_learned_compensated", 0) > 0 and c.get("dvl_learned_normal", 0) > 0
+
+
+def test_trainer_publishes_signed_dvl_beam_sets_the_predictor_answers_and_a_saved_model_loads_frozen(tmp_path):
+    """The services' cores: the trainer fits dvl_beam by the improved swarm and signs the set; the predictor
+    verifies it (numpy only) and answers a beam query with the seed's standardisation; a loop's saved model loads
+    into a frozen loop that answers the same and learns nothing."""
+    pytest.importorskip("torch")
+    import logging
+
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+    from zennav import messages as M
+    from zennav.learn.loop import InProcessLoop
+    from zennav.learn.settings import LearnSettings
+    from zennav.learn.signing import Signer, Verifier
+    from zennav.nav.learning import LearnQuery, LearnSample
+    from zennav.nodes.predictor import PredictorNode
+    from zennav.nodes.trainer import TrainerNode
+
+    log = logging.getLogger("test")
+    K = M.Keys("auv")
+    key = Ed25519PrivateKey.generate()
+    settings = LearnSettings(optimizer="ipso", min_samples=200, max_epochs=3, seed=1)
+    published = []
+    trainer = TrainerNode(lambda name, msg: published.append(msg), log, ("dvl_beam",), settings, signer=Signer(key))
+    x, y = _beam_features(200, seed=2)
+    samples = [LearnSample(10**12 + i * 10**8, "dvl_beam", x[i], y[i]) for i in range(200)]
+    for s in samples:
+        trainer.on_sample(M.learn_sample_msg(s))
+    msg = trainer.train("dvl_beam")
+    assert msg is not None and msg["metrics"]["method"] == "ipso" and msg["signature"]
+    wire, reason = M.Validator().check(K.learn_model(msg["name"]), M.encode(dict(msg, src="t", seq=0, pub_ns=0)))
+    assert reason == ""
+    pred = PredictorNode(lambda m: None, log, verifier=Verifier(key.public_key()))
+    assert pred.on_model(K.learn_model(msg["name"]), wire, 0)
+    live = pred.live["dvl_beam"]
+    np.testing.assert_allclose(live.norm["x_mean"][1:], x[:, 1:].min(axis=0))  # lambda, R: min-max
+    np.testing.assert_allclose(live.norm["x_std"][1:], np.ptp(x[:, 1:], axis=0))
+    query = LearnQuery(2 * 10**12, "dvl_beam", x[5], 0.0, beam=2)
+    ans = pred.on_query(dict(M.learn_query_msg(query, 200), src="ins", seq=1))
+    assert ans.get("refused") is None and abs(ans["value"][0] - y[5, 0]) < 0.02
+    loop = InProcessLoop("dvl_beam", settings)
+    loop.add(samples)
+    path = tmp_path / "dvl_beam.msgpack"
+    loop.save_model(path)
+    frozen = InProcessLoop("dvl_beam", settings)
+    frozen.load_model(path)
+    value, _ = frozen.predict(query)
+    assert value[0] == pytest.approx(loop.predict(query)[0][0])
+    frozen.add(samples[:10])
+    assert frozen.status()["trainer"]["ignored"] == 10 and frozen.learner.received == 0
+    with pytest.raises(ValueError):
+        InProcessLoop("drift", settings).load_model(path)
