@@ -267,3 +267,21 @@ def test_trainer_publishes_signed_dvl_beam_sets_the_predictor_answers_and_a_save
     assert frozen.status()["trainer"]["ignored"] == 10 and frozen.learner.received == 0
     with pytest.raises(ValueError):
         InProcessLoop("drift", settings).load_model(path)
+
+
+def test_a_held_sample_survives_a_checkpoint():
+    """Navigator.get_state / set_state carry the held sample and the rule's memory: the restored engine releases
+    it at the same data time with the same decisions."""
+    nav = _underwater_nav()
+    nav.on_aid("dvl", _dvl(nav, bias=(0.0, 0.3, 0.0, 0.0)))
+    queries = nav.pop_queries()
+    nav.on_correction(queries[1], [0.3], [0.01])
+    other = _underwater_nav()
+    other.set_state(nav.get_state())
+    for engine in (nav, other):
+        for q in (queries[0], queries[2]):
+            engine.on_correction(q, [0.0], [0.01])
+        _step(engine, 60)
+    assert nav.counters == other.counters and nav.counters["dvl_learned_no_answer"] == 1
+    assert nav.counters["dvl_learned_compensated"] == 1
+    np.testing.assert_array_equal(nav.state.v_n, other.state.v_n)
