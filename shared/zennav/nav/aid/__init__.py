@@ -40,7 +40,8 @@ def build_sources(config: NavConfig, t0_ns: int) -> list[AidSource]:
     if isinstance(dvl, DvlTight) and config.learning and config.dvl_learned:
         dvl = LearnedDvl(config)  # learned beam-error compensation (dvl_learned.py)
     sources += [s for s in (dvl, depth_source(config)) if s is not None]
-    if config.learning:
-        sources += [DvlAnswers(dvl) if target == "dvl_beam" and isinstance(dvl, LearnedDvl)
-                    else LearnedSource(config, target) for target in TARGETS]
+    if config.learning:  # dvl_beam answers go to the learned DVL (none without it: counted correction_malformed)
+        sources += [LearnedSource(config, target) for target in TARGETS if target != "dvl_beam"]
+        if isinstance(dvl, LearnedDvl):
+            sources.append(DvlAnswers(dvl))
     return sources
