@@ -183,8 +183,9 @@ def main() -> None:
             results[name].append(s)
             counters = s["engine"]["counters"]
             fused = counters.get("dvl_fused", 0) + counters.get("dvl_loose_fused", 0)
+            decisions = ", ".join(f"{k[12:]} {v}" for k, v in sorted(counters.items()) if k.startswith("dvl_learned_"))
             print(f"Trajectory{n:<3}{name:<22}{s['rmse_m']:>9.2f}{s['final_m']:>9.2f}{s['drift_pct']:>9.3f}"
-                  f"{fused:>10}", flush=True)
+                  f"{fused:>10}" + (f"   beams: {decisions}" if decisions else ""), flush=True)
     print(f"\n{'all':<13}{'method':<22}{'RMSE m':>9}{'final m':>9}{'drift %':>9}   (means over the trajectories)")
     for name, rows in results.items():
         print(f"{'mean':<13}{name:<22}{np.mean([r['rmse_m'] for r in rows]):>9.2f}"
