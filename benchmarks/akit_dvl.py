@@ -17,8 +17,21 @@ can fix: bad data, not a bad filter).
 METHODS is the one list of what is compared: name -> run(dataset) -> ReplayResult. Another method (e.g. a learned
 compensation) is one more entry.
 
+The learned method, "tight VBKF + PSO-ANFIS" (seed 003: tight VBKF whose DVL source learns its beam errors and
+compensates the beams its anomaly discrimination judges anomalous, zennav.nav.aid.dvl_learned), needs a model
+trained on OTHER trajectories (--train, default 1-11; the data's authors train on 11 segments and test on 2, and
+T12/T13 are the cleanest): each training trajectory is replayed by the same product loop (zennav.learn.loop,
+anfis-ipso, target dvl_beam) with derived GNSS over the WHOLE run (--train-gnss-s: the vehicle "at the surface",
+the GNSS-aided filter the reference of the beam errors, as the seed's PHINS + GPS) and with the seed's anomaly
+kinds injected from the start (--train-anomalies, seeded), so that the training samples contain anomalous
+measurements (seed step 2). The last set is written to --model-out and every test run loads it (InProcessLoop
+.load_model: frozen, nothing learned from the test trajectory). With --seeds 0,1,2 each seed retrains (the
+injection and the model seed) and the tables give the per-seed figures and the median over the seeds.
+
     .venv/bin/python benchmarks/akit_dvl.py [--trajectories 1-13] [--methods "loose EKF,tight EKF"] [--gnss-s 60]
         [--anomalies all --anomalies-from-s 60] [--seed 0]
+    .venv/bin/python benchmarks/akit_dvl.py --trajectories 12,13 --train 1-11 --anomalies all --seeds 0,1,2 \
+        --methods "loose EKF,tight EKF,tight VBKF,tight VBKF + PSO-ANFIS"
 """
 from __future__ import annotations
 
@@ -26,11 +39,14 @@ import argparse
 import math
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 from zennav.datasets.akit import gyro_attitude
 from zennav.datasets.registry import akit_specs, load_dataset
+from zennav.learn.loop import InProcessLoop, make_compensator
+from zennav.learn.settings import compensation_settings
 from zennav.metrics import evaluate, ned_errors
 from zennav.nav import earth
 from zennav.nav.rotation import wrap_angle
@@ -48,6 +64,33 @@ METHODS: dict[str, Callable[[Dataset], ReplayResult]] = {
     "tight EKF": _with_config(dvl_mode="tight", vb_dvl=False),
     "tight VBKF": _with_config(dvl_mode="tight", vb_dvl=True),
 }
+LEARNED = "tight VBKF + PSO-ANFIS"  # needs a trained model (train_dvl_model); added to METHODS by main
+LEARNED_COMPENSATION = "anfis-ipso"  # seed 003's improved PSO (zennav.learn.pso.IMPROVED)
+LEARNED_CONFIG = {"dvl_mode": "tight", "vb_dvl": True}
+TRAIN_WINDOW = 50_000  # samples: every training sample of 11 dives (4 beams x 1 Hz x 400 s each at most)
+
+
+def train_dvl_model(trajectories: list[int], options: dict, seed: int, path) -> dict:
+    """Replay the training trajectories through one learning loop (module docstring) and write its last set to
+    path; returns the loop's status counters."""
+    # all the training samples in one fit at the end (the default window keeps the newest 2000: two dives)
+    loop = InProcessLoop("dvl_beam", compensation_settings(LEARNED_COMPENSATION, seed).with_(
+        window=TRAIN_WINDOW, retrain_samples=TRAIN_WINDOW))
+    for n in trajectories:
+        ds = load_dataset(f"akit:Trajectory{n}", **options)
+        run_replay(replace(ds, config=ds.config.with_(**LEARNED_CONFIG)), compensator=loop)
+    loop.save_model(path)
+    return loop.status()
+
+
+def learned_method(path) -> Callable[[Dataset], ReplayResult]:
+    """The learned method with the model in path, loaded afresh (frozen) for every run."""
+    def run(ds: Dataset) -> ReplayResult:
+        loop = make_compensator(LEARNED_COMPENSATION, "dvl_beam")
+        assert loop is not None
+        loop.load_model(path)
+        return run_replay(replace(ds, config=ds.config.with_(**LEARNED_CONFIG)), compensator=loop)
+    return run
 
 
 def score(ds: Dataset, res: ReplayResult) -> dict:
@@ -95,8 +138,27 @@ def main() -> None:
     ap.add_argument("--anomalies", default=None, help="DVL anomaly spec (zennav.datasets.dvl_anomalies)")
     ap.add_argument("--anomalies-from-s", type=float, default=None, help="[s from the start; default --gnss-s]")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--train", default="1-11", help=f"{LEARNED}: the training trajectories")
+    ap.add_argument("--train-gnss-s", type=float, default=400.0, help=f"{LEARNED}: derived GNSS in training [s]")
+    ap.add_argument("--train-anomalies", default="all", help=f"{LEARNED}: anomalies injected in training")
+    ap.add_argument("--model", default=None, help=f"{LEARNED}: use this trained model (no training)")
+    ap.add_argument("--model-out", default="out/akit_dvl_beam_model.msgpack", help=f"{LEARNED}: where training "
+                    "writes the model")
     args = ap.parse_args()
     methods = [m.strip() for m in args.methods.split(",")]
+    if LEARNED in methods:
+        model = args.model
+        if model is None:
+            train = _trajectories(args.train)
+            if set(train) & set(_trajectories(args.trajectories)):
+                ap.error("--train and --trajectories overlap: the model must not see a test trajectory")
+            Path(args.model_out).parent.mkdir(parents=True, exist_ok=True)
+            status = train_dvl_model(train, {"gnss_s": args.train_gnss_s, "seed": args.seed, "anomalies":
+                                             args.train_anomalies, "anomalies_from_s": 0.0}, args.seed, args.model_out)
+            model = args.model_out
+            print(f"{LEARNED}: trained on trajectories {args.train} (GNSS {args.train_gnss_s:g} s, anomalies "
+                  f"{args.train_anomalies!r}, seed {args.seed}): {status['trainer']}; model {model}", flush=True)
+        METHODS[LEARNED] = learned_method(model)
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         ap.error(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
@@ -121,8 +183,9 @@ def main() -> None:
             results[name].append(s)
             counters = s["engine"]["counters"]
             fused = counters.get("dvl_fused", 0) + counters.get("dvl_loose_fused", 0)
+            decisions = ", ".join(f"{k[12:]} {v}" for k, v in sorted(counters.items()) if k.startswith("dvl_learned_"))
             print(f"Trajectory{n:<3}{name:<22}{s['rmse_m']:>9.2f}{s['final_m']:>9.2f}{s['drift_pct']:>9.3f}"
-                  f"{fused:>10}", flush=True)
+                  f"{fused:>10}" + (f"   beams: {decisions}" if decisions else ""), flush=True)
     print(f"\n{'all':<13}{'method':<22}{'RMSE m':>9}{'final m':>9}{'drift %':>9}   (means over the trajectories)")
     for name, rows in results.items():
         print(f"{'mean':<13}{name:<22}{np.mean([r['rmse_m'] for r in rows]):>9.2f}"

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-COMPENSATIONS = ("anfis", "anfis-pso", "elman")  # zennav.learn.settings.COMPENSATIONS (checked by a test)
+COMPENSATIONS = ("anfis", "anfis-pso", "anfis-ipso", "elman")  # zennav.learn.settings.COMPENSATIONS (checked by a test)
 # --vehicle: default dataset, duration [s] and its other loader options (the AUV's DVL loses the bottom for 10 s
 # of its dive, so that the no-beam case shows too)
 VEHICLES = {"car": ("sim:car", 600.0, {}), "auv": ("sim:auv", 300.0, {"dvl_bottom_loss": "220:10"})}

@@ -29,7 +29,8 @@ ATTITUDE_PARAMS = DEPLOY_DIR / "attitude.yaml"
 SENSOR_FIELDS = ("imu_noise", "lever_arm_b", "dvl_tilt", "dvl_layout", "dvl_mount_euler", "dvl_lever_b",
                  "depth_surface_h_m", "has_dvl", "has_depth", "start_t_ns",
                  "end_t_ns")  # travel with the data (stream_start)
-SERVICE_FIELDS = ("learning",)  # set by the ins's --learning / replay's --compensation
+# set by the ins's --learning / replay's --compensation (dvl_learned: with the dvl_beam target)
+SERVICE_FIELDS = ("learning", "dvl_learned")
 
 
 class ParamError(ValueError):
@@ -91,6 +92,11 @@ FILTER: dict[str, Param] = {
     "learn_after_s": Param("learning", "s"),
     "learn_horizon_s": Param("learning", "s"),
     "learn_answer_max_age_s": Param("learning", "s"),
+    "dvl_answer_timeout_s": Param("learning", "s"),
+    "dvl_anomaly_k_sigma": Param("learning", ""),
+    "dvl_anomaly_probability": Param("learning", ""),
+    "dvl_anomaly_window": Param("learning", "", "int"),
+    "dvl_anomaly_min_count": Param("learning", "", "int"),
     # vehicle-motion constraints
     "nhc": Param("constraints", "", "bool"),
     "nhc_std_mps": Param("constraints", "m/s"),

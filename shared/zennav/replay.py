@@ -156,7 +156,8 @@ def run_replay(
     odometer stream yet): each goes to the engine's sources that take it after the first IMU sample at or after its
     time, outages or not, before that epoch's solution (the odometer's first, then the DVL's and depth's in time
     order; zennav.nodes.ins hands the bus's over the same way)."""
-    config = ds.config.with_(learning=True) if compensator is not None else ds.config
+    config = ds.config if compensator is None else ds.config.with_(
+        learning=True, dvl_learned=getattr(compensator, "target", None) == "dvl_beam")
     nav = navigator or Navigator(config, ds.initial)
     rec = Recorder() if smoothing else None
     nav.recorder = rec
@@ -194,6 +195,8 @@ def run_replay(
                 prediction = compensator.predict(query)
                 if prediction is not None:
                     nav.on_correction(query, *prediction)
+                elif getattr(compensator, "last_refusal", ""):
+                    nav.on_refusal(query, compensator.last_refusal)
         s = nav.state
         t_out[i] = nav.t_ns
         out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)

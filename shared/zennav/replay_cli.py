@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 # zennav.nav.learning.TARGETS, written out so that the command line starts without the core (a test ties them)
-TARGETS = ("position", "velocity", "drift", "body_velocity")
+TARGETS = ("position", "velocity", "drift", "body_velocity", "dvl_beam")
 
 
 def _click_parser(name: str):
@@ -162,15 +162,17 @@ _outage_opts = [
                  help="Write nav.txt (KF-GINS .nav: week, sow, lat/lon deg, h m, v NED m/s, roll/pitch/yaw deg), "
                  "nav.csv and metrics.json here."),
     click.option("--json", "as_json", is_flag=True, help="Print metrics.json instead of the table."),
-    click.option("--compensation", type=click.Choice(["none", "anfis", "anfis-pso", "elman"]), default="none",
-                 show_default=True, help="Learned INS-error compensation during outages, the trainer's and "
-                 "predictor's learning loop in this process (zennav.learn.loop, default LearnSettings): anfis "
-                 "(premises by hybrid LSE + Fletcher-Reeves CG, seed 000), anfis-pso (premises by particle swarm, "
-                 "seed 003), elman (online Elman network, seed 002)."),
+    click.option("--compensation", type=click.Choice(["none", "anfis", "anfis-pso", "anfis-ipso", "elman"]),
+                 default="none", show_default=True, help="Learned INS-error compensation during outages, the "
+                 "trainer's and predictor's learning loop in this process (zennav.learn.loop, default "
+                 "LearnSettings): anfis (premises by hybrid LSE + Fletcher-Reeves CG, seed 000), anfis-pso "
+                 "(premises by particle swarm, seed 003), anfis-ipso (seed 003's improved swarm: inertia 0.9 -> 0.4, "
+                 "c1 2.5 -> 0.5, c2 0.5 -> 2.5), elman (online Elman network, seed 002)."),
     click.option("--target", type=click.Choice(TARGETS), default="body_velocity", show_default=True,
                  help="What the model learns (zennav.nav.learning): the filter's position corrections (seed 000), its "
                  "velocity corrections, i.e. increments of INS minus filter (seed 002), the drift of a free INS "
-                 "since a fix, or the vehicle's body-frame velocity (a learned motion model)."),
+                 "since a fix, or the vehicle's body-frame velocity (a learned motion model), or each DVL beam's error "
+                 "(seed 003: learned at the surface, compensated under water by the anomaly discrimination)."),
     click.option("--seed", type=int, default=0, show_default=True,
                  help="Seed of the learned model (ANFIS: k-means rule base and premises; Elman: initial weights)."),
     click.option("-v", "--verbose", count=True, help="Log engine events (-v: warnings, -vv: debug)."),

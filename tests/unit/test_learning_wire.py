@@ -129,7 +129,7 @@ def test_predictor_refuses_queries_outside_the_training_range():
 class _FakeNav:
     def __init__(self):
         self.t_ns = 0
-        self.samples, self.queries, self.fused = [], [], []
+        self.samples, self.queries, self.fused, self.refused = [], [], [], []
 
     def pop_samples(self):
         s, self.samples = self.samples, []
@@ -142,6 +142,9 @@ class _FakeNav:
     def on_correction(self, q, value, std):
         self.fused.append((q.t_ns, list(value), list(std)))
         return True
+
+    def on_refusal(self, q, reason):
+        self.refused.append((q.t_ns, reason))
 
 
 def test_ins_learning_link_matches_answers_to_pending_queries():
@@ -176,6 +179,7 @@ def test_ins_learning_link_matches_answers_to_pending_queries():
     nav.queries = [LearnQuery(nav.t_ns, "drift", np.zeros(N_IN), 1.0)]
     link.after_imu(nav)
     assert not link.on_correction(nav, refusal_msg(sent[-1][1], "off_domain")) and len(nav.fused) == 1
+    assert nav.refused == [(nav.t_ns, "off_domain")]  # the engine is told (a held DVL sample stops waiting)
     nav.queries = [LearnQuery(nav.t_ns, "drift", np.zeros(N_IN), 1.0)]
     link.after_imu(nav)
     nav.t_ns += 5 * 10**9

@@ -62,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "core runs exactly as the in-process replay)")
     p.add_argument("--learn-targets", default="body_velocity",
                    help="comma-separated target variants to publish samples and queries for (position, velocity, "
-                        "drift, body_velocity; zennav.nav.learning)")
+                        "drift, body_velocity, dvl_beam; zennav.nav.learning)")
     p.add_argument("--lockstep", action="store_true",
                    help="wait for the answer to each learn/query before the next sensor sample (a replay of a "
                         "recording, with the predictor's --lockstep: the in-process replay's learned corrections, "

@@ -64,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default=d.model, choices=MODELS, help="anfis: fitted on the newest samples; "
                    "elman: learns online from every sample (seed 002)")
     p.add_argument("--optimizer", default=d.optimizer, choices=OPTIMIZERS,
-                   help="anfis premises: cg (hybrid LSE + Fletcher-Reeves CG, seed 000) or pso (seed 003)")
+                   help="anfis premises: cg (hybrid LSE + Fletcher-Reeves CG, seed 000), pso (seed 003) or ipso "
+                   "(seed 003's improved swarm: inertia 0.9 -> 0.4, c1 2.5 -> 0.5, c2 0.5 -> 2.5)")
     p.add_argument("--targets", default="body_velocity",
                    help=f"comma-separated target variants to learn ({', '.join(TARGETS)})")
     p.add_argument("--prefix", default=None, help="model name prefix (default: --model): sets are published as "

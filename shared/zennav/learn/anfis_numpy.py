@@ -16,7 +16,9 @@ Model arrays (float64, `rules` int64), in normalised input/output units:
   rules         (n_rules, n_in)          index of the MF that input j uses in rule r
   consequents   (n_rules, n_in + 1, n_out)  rows 0..n_in-1 P_r, last row q_r
 Normalisation (`norm`): x_mean, x_std, x_min, x_max (n_in,), y_mean, y_std (n_out,); x_n = (x - x_mean) / x_std,
-y = y_n * y_std + y_mean. x_min, x_max: the training inputs' range, the model's domain: a first-order TS model
+y = y_n * y_std + y_mean. By default z-scores; a min-max column (fit_normalization's minmax, seed 003 step 3.1)
+has x_mean = its minimum and x_std = its range, so x_n falls in [0, 1] over the training samples.
+x_min, x_max: the training inputs' range, the model's domain: a first-order TS model
 extrapolates linearly (and without bound) outside it, so predictors refuse inputs beyond it (`domain_excess`).
 
 Rule bases: `grid_rulebase` (every combination of n_mf MFs per input: n_mf ** n_in rules, for a few
@@ -72,24 +74,23 @@ def predict(arrays: Mapping[str, np.ndarray], norm: Mapping[str, np.ndarray], x:
     return y[0] if x.ndim == 1 else y
 
 
-def fit_normalization(x: np.ndarray, y: np.ndarray, min_std: float = 1e-12) -> dict[str, np.ndarray]:
+def fit_normalization(x: np.ndarray, y: np.ndarray, min_std: float = 1e-12, minmax=()) -> dict[str, np.ndarray]:
     """Per-column mean, standard deviation (floored at min_std) and range of the inputs; mean and standard
-    deviation of the targets."""
+    deviation of the targets. The input columns listed in minmax are min-max scaled instead: x_mean = minimum,
+    x_std = range (floored at min_std)."""
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     y = y[:, None] if y.ndim == 1 else y
-    return dict(
-        x_mean=x.mean(axis=0),
-        x_std=np.maximum(x.std(axis=0), min_std),
-        x_min=x.min(axis=0),
-        x_max=x.max(axis=0),
-        y_mean=y.mean(axis=0),
-        y_std=np.maximum(y.std(axis=0), min_std),
-    )
+    x_mean, x_std = x.mean(axis=0), np.maximum(x.std(axis=0), min_std)
+    x_min, x_max = x.min(axis=0), x.max(axis=0)
+    cols = list(minmax)
+    x_mean[cols], x_std[cols] = x_min[cols], np.maximum(x_max[cols] - x_min[cols], min_std)
+    return dict(x_mean=x_mean, x_std=x_std, x_min=x_min, x_max=x_max, y_mean=y.mean(axis=0),
+                y_std=np.maximum(y.std(axis=0), min_std))
 
 
 def domain_excess(norm: Mapping[str, np.ndarray], x: np.ndarray) -> float:
-    """How far x (n_in,) lies outside the training range [x_min, x_max], in training standard deviations of
-    the input that is farthest out (0.0 inside the range)."""
+    """How far x (n_in,) lies outside the training range [x_min, x_max], in units of x_std (training standard
+    deviations; ranges for min-max columns) of the input that is farthest out (0.0 inside the range)."""
     x = np.asarray(x, dtype=float)
     out = np.maximum(norm["x_min"] - x, x - norm["x_max"])
     return float(max(0.0, np.max(out / norm["x_std"])))

@@ -9,7 +9,9 @@ minimises the loss with the consequents at their least-squares optimum (variable
 cg_projected=False the LSE runs once per epoch and the CG sees fixed consequents (Jang's alternation).
 For comparison: the same with plain gradient descent on the premises (Jang's fixed step length k:
 dp = -k g / |g|), Adam on all parameters from zero consequents (D. P. Kingma, J. Ba, ICLR 2015, written
-out here; torch.optim is not used), and PSO on the premises with least-squares consequents (seed 003).
+out here; torch.optim is not used), and PSO on the premises with least-squares consequents (seed 003): "pso"
+with TrainConfig.pso (constant Clerc-Kennedy coefficients by default), "ipso" with seed 003's improved schedule
+(zennav.learn.pso.IMPROVED: inertia 0.9 -> 0.4, c1 2.5 -> 0.5, c2 0.5 -> 2.5 over the epochs).
 Epoch 0 of a training history is the initial model (consequents zero unless given).
 
 torch serves as the tensor library and autograd supplies the premise gradients. The premises are held as
@@ -31,10 +33,10 @@ import torch
 from . import anfis_numpy
 from .fr_cg import fr_cg
 from .lse import ridge_lstsq
-from .pso import PSOConfig, Swarm
+from .pso import IMPROVED, PSOConfig, Swarm
 from .sigma import answer_lag, answer_sigma
 
-METHODS = ("hybrid_cg", "hybrid_gd", "adam", "pso")
+METHODS = ("hybrid_cg", "hybrid_gd", "adam", "pso", "ipso")
 
 
 def default_device() -> torch.device:
@@ -292,7 +294,9 @@ def _pso(model, x, y, cfg):
             out.append(float(_mse(model, x, y, p, theta)))
         return np.array(out)
 
-    pso_cfg = replace(cfg.pso, max_iter=cfg.max_epochs)  # the inertia schedule spans the epochs
+    base = IMPROVED if cfg.method == "ipso" else cfg.pso
+    pso_cfg = replace(base, n_particles=cfg.pso.n_particles, vmax_frac=cfg.pso.vmax_frac,
+                      init_spread=cfg.pso.init_spread, max_iter=cfg.max_epochs)  # the schedules span the epochs
     swarm = Swarm(cost, p0 - span, p0 + span, pso_cfg, x0=p0, seed=cfg.seed)
 
     def epoch():
@@ -302,7 +306,7 @@ def _pso(model, x, y, cfg):
     return epoch
 
 
-_EPOCHS = dict(hybrid_cg=_hybrid_cg, hybrid_gd=_hybrid_gd, adam=_adam, pso=_pso)
+_EPOCHS = dict(hybrid_cg=_hybrid_cg, hybrid_gd=_hybrid_gd, adam=_adam, pso=_pso, ipso=_pso)
 
 
 @dataclass
@@ -314,15 +318,16 @@ class FitResult:
 
 
 def fit_anfis(x, y, *, n_rules: int | None = None, n_mf: int | None = None, config: TrainConfig = TrainConfig(),
-              x_val=None, y_val=None, device=None) -> FitResult:
+              x_val=None, y_val=None, device=None, minmax=()) -> FitResult:
     """Normalise, build the rule base (k-means with n_rules rules, or a grid with n_mf MFs per input), train.
 
-    x, y in physical units, (N, n_in) and (N,) or (N, n_out). Exactly one of n_rules / n_mf.
+    x, y in physical units, (N, n_in) and (N,) or (N, n_out). Exactly one of n_rules / n_mf. minmax: input
+    columns scaled to [0, 1] instead of z-scored (anfis_numpy.fit_normalization).
     """
     if (n_rules is None) == (n_mf is None):
         raise ValueError("give exactly one of n_rules (clusters) and n_mf (grid)")
     x, y = _as_xy(x, y)
-    norm = anfis_numpy.fit_normalization(x, y)
+    norm = anfis_numpy.fit_normalization(x, y, minmax=minmax)
     xn, yn = (x - norm["x_mean"]) / norm["x_std"], (y - norm["y_mean"]) / norm["y_std"]
     if n_rules is not None:
         rb = anfis_numpy.cluster_rulebase(xn, n_rules, seed=config.seed)
@@ -348,7 +353,7 @@ def fit_anfis(x, y, *, n_rules: int | None = None, n_mf: int | None = None, conf
 
 
 def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig(), holdout: float = 0.25,
-                    t_ns=None, answer_period_s: float = 0.0, device=None) -> FitResult:
+                    t_ns=None, answer_period_s: float = 0.0, device=None, minmax=()) -> FitResult:
     """fit_anfis with a k-means rule base on all of x, y (rows in time order, newest last) plus the 1-sigma of its
     answers. Rules: max_rules, fewer while samples are few: at most one consequent parameter per 4 samples per
     output (n_rules * (n_in + 1) <= N / 4), so that the fit does not interpolate its samples. 1-sigma: a first
@@ -356,17 +361,17 @@ def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig()
     units) is zennav.learn.sigma.answer_sigma of those held-out residuals (their RMS inflated for their
     correlation one answer apart: answer_period_s over the held-out rows' spacing in t_ns, sample times [ns];
     no t_ns: the next row), at least the final fit's training RMSE; metrics["holdout_rmse"] and ["holdout_rho"]
-    keep the parts."""
+    keep the parts. minmax: as in fit_anfis."""
     x, y = _as_xy(x, y)
     n = int(round(len(x) * (1.0 - holdout)))
     if not 0 < n < len(x):
         raise ValueError(f"holdout {holdout} leaves no training or no held-out row of {len(x)}")
     n_rules = max(1, min(max_rules, len(x) // (4 * (x.shape[1] + 1))))
-    first = fit_anfis(x[:n], y[:n], n_rules=n_rules, config=config, device=device)
+    first = fit_anfis(x[:n], y[:n], n_rules=n_rules, config=config, device=device, minmax=minmax)
     residuals = anfis_numpy.predict(first.arrays, first.norm, x[n:]) - y[n:]
     lag = 1 if t_ns is None else answer_lag(np.asarray(t_ns)[n:], answer_period_s)
     sigma, rho = answer_sigma(residuals, lag=lag)
-    fit = fit_anfis(x, y, n_rules=n_rules, config=config, device=device)
+    fit = fit_anfis(x, y, n_rules=n_rules, config=config, device=device, minmax=minmax)
     fit.metrics["holdout_rmse"] = np.sqrt(np.mean(residuals**2, axis=0)).tolist()
     fit.metrics["holdout_rho"] = rho.tolist()
     fit.metrics["sigma"] = np.maximum(sigma, fit.metrics["train_rmse"]).tolist()

@@ -12,9 +12,11 @@ Models (settings.model):
 - anfis: fit on the newest `window` of the first n samples, by zennav.learn.anfis_torch.fit_anfis_sigma with the
   hybrid LSE + Fletcher-Reeves CG premises (optimizer cg, seed 000) or PSO premises (optimizer pso, seed 003; the
   swarm of zennav.learn.pso with a constant inertia 0.7298 and c1 = c2 = 1.49618, Clerc and Kennedy, IEEE TEC
-  6(1) 2002; the seed gives the PSO update but no coefficient values). 1-sigma: the residuals on the newest
-  quarter of the samples of a fit on the rest (zennav.learn.sigma). torch is imported only inside the fit, or not
-  at all with a ``fitter`` (the trainer's zennav.learn.fit_worker.FitWorker: the same fit in a child process).
+  6(1) 2002; the seed gives the PSO update but no coefficient values) or the improved swarm (optimizer ipso, seed
+  003 step 3.3: zennav.learn.pso.IMPROVED). Inputs are z-scored, those of MINMAX_FEATURES min-max scaled.
+  1-sigma: the residuals on the newest quarter of the samples of a fit on the rest (zennav.learn.sigma). torch is
+  imported only inside the fit, or not at all with a ``fitter`` (the trainer's zennav.learn.fit_worker.FitWorker:
+  the same fit in a child process).
 - elman (seed 002): ElmanOnline learns every sample in order; its set at n is its state after n samples (weights,
   context, normalisation, the range of the learned features, 1-sigma of its free-running copies); no set while
   its training error is above its threshold.
@@ -29,7 +31,7 @@ from collections import Counter, deque
 
 import numpy as np
 
-from ..nav.learning import ANSWER_PERIOD_S, FEATURES, OUTPUTS, TARGETS
+from ..nav.learning import ANSWER_PERIOD_S, FEATURES, MINMAX_FEATURES, OUTPUTS, TARGETS
 from . import anfis_numpy, paramset
 from .elman import Elman
 from .elman import step as elman_step
@@ -245,11 +247,12 @@ class Learner:
         rows = list(self._rows)
         t_ns = np.array([r[0] for r in rows], dtype=np.int64)
         x, y = np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
+        minmax = {"minmax": MINMAX_FEATURES[self.target]} if self.target in MINMAX_FEATURES else {}
         try:
             fit = (self.fitter or self._fit_here)(
                 x, y, max_rules=self.s.n_rules, device=self.device, t_ns=t_ns,
                 answer_period_s=ANSWER_PERIOD_S[self.target],
-                config={"method": self.s.method, "max_epochs": self.s.max_epochs, "seed": self.s.seed})
+                config={"method": self.s.method, "max_epochs": self.s.max_epochs, "seed": self.s.seed}, **minmax)
         except Exception as e:  # a degenerate window must not stop the learner: no set, counted, reason kept
             self.counts["fit_errors"] += 1
             self.last_error = f"{type(e).__name__}: {e}"[:300]

@@ -105,6 +105,7 @@ class LearningLink:
                 return False
             if msg.get("refused"):
                 self.counts[f"refused_{msg['refused']}"] += 1
+                nav.on_refusal(q, str(msg["refused"]))  # a source holding data for the answer stops waiting
                 return False
             self.last_model, self.last_version = msg["model"], msg["version"]
             # the engine judges the answer: stale (a fix fused since the query), late, malformed, gated (its counters)

@@ -6,12 +6,20 @@ The replay hands over the engine's samples (``add``) and queries (``predict`` ->
 carries the count n of its target's samples so far: the learner fits through n if no set is through n yet (the
 first query of an outage, so the model includes the newest data), the core swaps the set in and answers with it.
 Scheduled fits (every retrain_samples samples) happen as the samples arrive, as in the trainer.
+
+A model trained on other runs (e.g. other trajectories of a vehicle: seed 003 trains at the surface, the A-KIT
+benchmark on other dives) goes from one loop to another as a parameter-set file (``save_model`` writes the last set,
+msgpack as on the bus; ``load_model`` validates it as the predictor does): a loop with a loaded model is frozen, it
+answers with that set and learns nothing more (its samples are counted, not learned).
 """
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
 from ..nav.learning import TARGETS, LearnQuery, LearnSample
+from . import paramset
 from .learner import Learner
 from .predictor_core import PredictorCore
 from .settings import COMPENSATIONS, LearnSettings, compensation_settings
@@ -29,39 +37,75 @@ class InProcessLoop:
         self.core = PredictorCore(settings.max_domain_excess)
         self.version = 0  # of the last set made
         self.queries = 0  # queries received for the target
+        self.last_refusal = ""  # the reason the last query was refused ("": answered, or not this loop's target)
+        self.last_set: dict | None = None  # the last parameter-set message made or loaded
+        self.frozen = False  # a loaded model: no learning
+        self.ignored = 0  # samples not learned by a frozen loop
 
     def _fit_due(self) -> None:
-        while (n := self.learner.due()) is not None:
+        while not self.frozen and (n := self.learner.due()) is not None:
             msg = self.learner.fit(n, self.version + 1)
             if msg is None:
                 continue
             self.version += 1
             self.core.offer(msg["name"], msg)
+            self.last_set = msg
+
+    def save_model(self, path) -> None:
+        """Write a parameter set trained through every sample received (fitted now where newer samples arrived
+        since the last set, as a query would; msgpack, zennav.learn.paramset.encode); ValueError when none can be
+        made."""
+        if not self.frozen and self.learner.received >= self.learner.min_samples:
+            self.learner.request(self.learner.received)
+            self._fit_due()
+        if self.last_set is None:
+            raise ValueError(f"no {self.target} model was trained: nothing to save")
+        Path(path).write_bytes(paramset.encode(self.last_set))
+
+    def load_model(self, path) -> None:
+        """Serve the parameter set in path (validated as the predictor does: schema, checksum, shapes, target) and
+        freeze the loop; ValueError with the reason when it is not a set of this loop's target."""
+        msg = paramset.decode(Path(path).read_bytes())
+        if (msg.get("metrics") or {}).get("target") != self.target:
+            raise ValueError(f"{path}: not a {self.target} model")
+        live, reason = self.core.offer(str(msg.get("name")), msg)
+        if live is None:
+            raise ValueError(f"{path}: {reason}")
+        self.last_set, self.frozen, self.version = msg, True, live.version
 
     def add(self, samples: list[LearnSample]) -> None:
-        """The engine's new training samples (other targets are ignored)."""
+        """The engine's new training samples (other targets are ignored; a frozen loop counts them only)."""
         for s in samples:
             if s.target == self.target:
-                self.learner.add(s.t_ns, s.features, s.value)
+                if self.frozen:
+                    self.ignored += 1
+                else:
+                    self.learner.add(s.t_ns, s.features, s.value)
         self._fit_due()
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, tuple] | None:
         """The answer (value, 1-sigma per output) to a query, through the model trained through every sample so
-        far; None when refused (counted by reason in core.queries)."""
+        far; None when refused (counted by reason in core.queries; the reason in last_refusal)."""
+        self.last_refusal = ""
         if query.target != self.target:
             return None
         self.queries += 1
-        self.learner.request(self.learner.received)
-        self._fit_due()
-        out = self.core.answer(query.target, query.features, self.learner.received)
-        return None if isinstance(out, str) else out[:2]
+        if not self.frozen:
+            self.learner.request(self.learner.received)
+            self._fit_due()
+        out = self.core.answer(query.target, query.features, None if self.frozen else self.learner.received)
+        if isinstance(out, str):
+            self.last_refusal = out
+            return None
+        return out[:2]
 
     def status(self) -> dict[str, dict[str, int]]:
         """The counters the services put in their status messages: "trainer" (zennav.services.trainer: per target
         received, through, sets, fit_points, version, ...), "predictor" (PredictorCore: sets accepted / rejected,
         queries answered, refused per reason, late_model, live version) and "link" (queries sent; whether an
         answer was fused is the engine's: its learned_<target>_fused / rejection counters)."""
-        return {"trainer": {**self.learner.counters(), f"version_{self.target}": self.version},
+        return {"trainer": {**self.learner.counters(), f"version_{self.target}": self.version,
+                            **({"frozen": 1, "ignored": self.ignored} if self.frozen else {})},
                 "predictor": self.core.counters(), "link": {"queries": self.queries}}
 
 

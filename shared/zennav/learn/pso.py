@@ -6,6 +6,13 @@ coefficients w = 0.7298, c1 = c2 = 1.49618 from M. Clerc, J. Kennedy, IEEE TEC 6
   v <- w v + c1 r1 (pbest - x) + c2 r2 (gbest - x),  x <- x + v,   r1, r2 ~ U(0, 1) per dimension,
 with |v| <= vmax_frac * (upper - lower) per dimension and positions clipped to the bounds (the velocity
 component that hits a bound is zeroed). Seed 003 uses it to tune the ANFIS premises.
+
+Seed 003's "improved PSO" names no schedule; IMPROVED is the usual pair of schedules over the iterations
+t = 0 .. max_iter - 1 (fraction s = t / (max_iter - 1)): linearly decreasing inertia w = 0.9 -> 0.4 (Shi and
+Eberhart 1998) and time-varying acceleration coefficients c1 = 2.5 -> 0.5, c2 = 0.5 -> 2.5 (A. Ratnaweera,
+S. K. Halgamuge, H. C. Watson, "Self-organizing hierarchical particle swarm optimizer with time-varying
+acceleration coefficients", IEEE TEC 8(3) 2004): first each particle explores around its own best, later the
+swarm converges on the global best.
 """
 from __future__ import annotations
 
@@ -18,7 +25,8 @@ import numpy as np
 @dataclass(frozen=True)
 class PSOConfig:
     """Swarm size, coefficients and schedule. inertia_end=None keeps the inertia constant; otherwise it
-    moves linearly from `inertia` to `inertia_end` over `max_iter` iterations."""
+    moves linearly from `inertia` to `inertia_end` over `max_iter` iterations; likewise cognitive_end and
+    social_end for c1 and c2 (time-varying acceleration coefficients)."""
 
     n_particles: int = 20
     max_iter: int = 100
@@ -26,8 +34,14 @@ class PSOConfig:
     inertia_end: float | None = None
     cognitive: float = 1.49618
     social: float = 1.49618
+    cognitive_end: float | None = None
+    social_end: float | None = None
     vmax_frac: float = 0.2
     init_spread: float = 0.25  # with x0: the swarm starts uniformly within x0 +- init_spread * (upper - lower)
+
+
+# seed 003's improved PSO (module docstring): w 0.9 -> 0.4, c1 2.5 -> 0.5, c2 0.5 -> 2.5
+IMPROVED = PSOConfig(inertia=0.9, inertia_end=0.4, cognitive=2.5, cognitive_end=0.5, social=0.5, social_end=2.5)
 
 
 @dataclass
@@ -75,20 +89,27 @@ class Swarm:
     def best_x(self) -> np.ndarray:
         return self.pbest_x[int(np.argmin(self.pbest_f))].copy()
 
+    def _scheduled(self, start: float, end: float | None) -> float:
+        """start moved linearly to end over the iterations (constant when end is None)."""
+        if end is None:
+            return start
+        t = min(self.iteration / max(self.cfg.max_iter - 1, 1), 1.0)
+        return start + t * (end - start)
+
     def inertia(self) -> float:
+        return self._scheduled(self.cfg.inertia, self.cfg.inertia_end)
+
+    def coefficients(self) -> tuple[float, float, float]:
+        """(w, c1, c2) of the next step."""
         c = self.cfg
-        if c.inertia_end is None:
-            return c.inertia
-        t = min(self.iteration / max(c.max_iter - 1, 1), 1.0)
-        return c.inertia + t * (c.inertia_end - c.inertia)
+        return self.inertia(), self._scheduled(c.cognitive, c.cognitive_end), self._scheduled(c.social, c.social_end)
 
     def step(self) -> float:
         """One velocity/position update and evaluation of the whole swarm; returns the best cost."""
-        c = self.cfg
+        w, c1, c2 = self.coefficients()
         r1, r2 = self.rng.random(self.x.shape), self.rng.random(self.x.shape)
         gbest = self.best_x
-        self.v = (self.inertia() * self.v + c.cognitive * r1 * (self.pbest_x - self.x)
-                  + c.social * r2 * (gbest - self.x))
+        self.v = w * self.v + c1 * r1 * (self.pbest_x - self.x) + c2 * r2 * (gbest - self.x)
         self.v = np.clip(self.v, -self.vmax, self.vmax)
         x = self.x + self.v
         hit = (x < self.lower) | (x > self.upper)

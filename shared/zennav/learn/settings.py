@@ -14,13 +14,16 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 MODELS = ("anfis", "elman")
-OPTIMIZERS = ("cg", "pso")  # anfis premises: hybrid LSE + FR-CG (seed 000) or PSO (seed 003)
-METHODS = {"cg": "hybrid_cg", "pso": "pso"}  # optimizer -> zennav.learn.anfis_torch.TrainConfig.method
+# anfis premises: hybrid LSE + FR-CG (seed 000), PSO (constant coefficients) or seed 003's improved PSO
+# (inertia 0.9 -> 0.4, c1 2.5 -> 0.5, c2 0.5 -> 2.5; zennav.learn.pso.IMPROVED)
+OPTIMIZERS = ("cg", "pso", "ipso")
+METHODS = {"cg": "hybrid_cg", "pso": "pso", "ipso": "ipso"}  # optimizer -> zennav.learn.anfis_torch.TrainConfig.method
 # per model: samples a fit (anfis) or the sliding training window (elman) uses, samples before the first fit
 WINDOW = {"anfis": 2000, "elman": 500}
 MIN_SAMPLES = {"anfis": 100, "elman": 200}
 # `zennav replay --compensation` choices -> (model, optimizer)
-COMPENSATIONS = {"anfis": ("anfis", "cg"), "anfis-pso": ("anfis", "pso"), "elman": ("elman", "cg")}
+COMPENSATIONS = {"anfis": ("anfis", "cg"), "anfis-pso": ("anfis", "pso"), "anfis-ipso": ("anfis", "ipso"),
+                 "elman": ("elman", "cg")}
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,7 @@ class LearnSettings:
 
     @property
     def label(self) -> str:
-        """anfis-cg, anfis-pso or elman."""
+        """anfis-cg, anfis-pso, anfis-ipso or elman."""
         return f"anfis-{self.optimizer}" if self.model == "anfis" else self.model
 
     def with_(self, **kw) -> LearnSettings:

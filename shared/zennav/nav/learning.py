@@ -24,6 +24,14 @@ Body-velocity features (12): mean f_b [m/s^2] and omega_ib_b [rad/s] over the la
 whole GNSS intervals that cover it; a query: exactly that long) and their standard deviations over it: the
 vibration, which grows with a car's speed on the road (and a rotor's speed); not the INS's own velocity, which a
 model would learn to echo (it equals the target while GNSS is good).
+"dvl_beam" (seed 003, steps 2-4): per DVL beam, its error [m/s]: the measured beam velocity minus the beam
+velocity the reference motion gives. The seed takes the reference from a PHINS aided by GPS; here, at the surface,
+the GNSS-aided filter's own state is the reference (zennav.nav.aid.dvl_learned). Features (3), per beam i at a DVL
+update: the innovation of beam i [m/s], the Mahalanobis distance lambda_k = v' S^-1 v of the whole DVL innovation
+and the variational-Bayes estimate of R_ii [(m/s)^2]. Standardised as seed 003 step 3.1: the innovation z-scored,
+lambda and R min-max scaled to [0, 1] over the training samples (MINMAX_FEATURES). One model for the four beams
+(the seed's ANFIS has these three inputs), one query per beam (LearnQuery.beam). Samples only while GNSS is valid,
+queries only while it is lost (zennav.nav.aid.dvl_learned emits both).
 Samples are emitted only after the filter converged; queries only while no GNSS is fused, every 1.5 GNSS
 intervals (rate targets), every second (drift) and every `body_every_s` once 1.5 GNSS intervals passed without
 a fix (body velocity), with the same features as the samples.
@@ -40,17 +48,21 @@ from .earth import dllh_to_ned
 from .rotation import wrap_angle
 from .strapdown import NavState, mechanize
 
-TARGETS = ("position", "velocity", "drift", "body_velocity")
+TARGETS = ("position", "velocity", "drift", "body_velocity", "dvl_beam")
 RATE_FEATURES = ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "v_n", "v_e", "v_d", "sin_yaw", "cos_yaw")
 DRIFT_FEATURES = ("tau",) + RATE_FEATURES[:-2] + ("sin_yaw0", "cos_yaw0", "dyaw")
 BODY_FEATURES = RATE_FEATURES[:6] + ("sd_f_x", "sd_f_y", "sd_f_z", "sd_w_x", "sd_w_y", "sd_w_z")
+DVL_BEAM_FEATURES = ("innovation", "lambda", "r_vb")
 FEATURES = {"position": RATE_FEATURES, "velocity": RATE_FEATURES, "drift": DRIFT_FEATURES,
-            "body_velocity": BODY_FEATURES}
-OUTPUTS = {"position": ("n", "e"), "velocity": ("n", "e"), "drift": ("n", "e"), "body_velocity": ("x", "y", "z")}
+            "body_velocity": BODY_FEATURES, "dvl_beam": DVL_BEAM_FEATURES}
+OUTPUTS = {"position": ("n", "e"), "velocity": ("n", "e"), "drift": ("n", "e"), "body_velocity": ("x", "y", "z"),
+           "dvl_beam": ("error",)}
+# feature columns scaled min-max to [0, 1] instead of z-scored (seed 003 step 3.1: lambda and R)
+MINMAX_FEATURES = {"dvl_beam": (1, 2)}
 BODY_EVERY_S = 1.0
 # Time between two answers of a target, for the correlation of their errors (zennav.learn.sigma.answer_lag); 0: the
 # next sample (rate targets: queries about as often as fixes; drift: samples of several shadows interleave).
-ANSWER_PERIOD_S = {"position": 0.0, "velocity": 0.0, "drift": 0.0, "body_velocity": BODY_EVERY_S}
+ANSWER_PERIOD_S = {"position": 0.0, "velocity": 0.0, "drift": 0.0, "body_velocity": BODY_EVERY_S, "dvl_beam": 0.0}
 
 
 @dataclass
@@ -65,12 +77,14 @@ class LearnSample:
 
 @dataclass
 class LearnQuery:
-    """A request for the predicted value of a target variant; dt_s is the interval of a rate target."""
+    """A request for the predicted value of a target variant; dt_s is the interval of a rate target; beam: the
+    DVL beam (0-3) of a dvl_beam query (-1 otherwise)."""
 
     t_ns: int
     target: str
     features: np.ndarray
     dt_s: float
+    beam: int = -1
 
 
 class FeatureWindow:
@@ -224,7 +238,8 @@ class LearningTap:
                 "shadows": [sh.get_state() for sh in self.shadows],
                 "samples": [[int(x.t_ns), x.target, x.features.tolist(), np.asarray(x.value).tolist()]
                             for x in self.samples],
-                "queries": [[int(q.t_ns), q.target, q.features.tolist(), float(q.dt_s)] for q in self.queries]}
+                "queries": [[int(q.t_ns), q.target, q.features.tolist(), float(q.dt_s), int(q.beam)]
+                            for q in self.queries]}
 
     def set_state(self, st: dict) -> None:
         self.rate_window = FeatureWindow.from_state(st["rate_window"])
@@ -235,8 +250,8 @@ class LearningTap:
         self.shadows = [Shadow.from_state(sh) for sh in st["shadows"]]
         self.samples = [LearnSample(int(t), target, np.array(f, dtype=float), np.array(v, dtype=float))
                         for t, target, f, v in st["samples"]]
-        self.queries = [LearnQuery(int(t), target, np.array(f, dtype=float), float(dt))
-                        for t, target, f, dt in st["queries"]]
+        self.queries = [LearnQuery(int(q[0]), q[1], np.array(q[2], dtype=float), float(q[3]),
+                                   int(q[4]) if len(q) > 4 else -1) for q in st["queries"]]
 
     def _body_sample(self, t_ns: int, s: NavState, converged: bool) -> None:
         """At a fused fix: slide the body-velocity window by this GNSS interval and sample it once it spans

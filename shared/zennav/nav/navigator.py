@@ -207,6 +207,17 @@ class Navigator:
             return False
         return src.on_input(self, (query, value, std))
 
+    def on_refusal(self, query: LearnQuery, reason: str) -> None:
+        """The compensator refused one of this engine's queries (reason: its code): a source holding data for the
+        answer stops waiting for it (zennav.nav.aid.dvl_learned); nothing else changes."""
+        src = self.sources.get(f"learned_{query.target}")
+        if src is not None:
+            src.on_refusal(self, query, reason)
+
+    def learning_started(self, t_ns: int) -> bool:
+        """Whether training samples may be taken at t_ns (after learn_after_s, and settled after an outage)."""
+        return t_ns >= self._learn_start_t_ns
+
     def on_aid(self, kind: str, data) -> bool:
         """Hand data of an input kind (one that no dedicated method above takes) to the sources that take it, now;
         returns whether any of them fused a measurement."""

@@ -296,6 +296,14 @@ class NavConfig:
     learn_after_s: float = 30.0  # no training samples before this time [s] from the start (filter converging)
     learn_horizon_s: float = 60.0  # longest outage the "drift" target learns [s] (shadow INS length)
     learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
+    # learned DVL beam errors (zennav.nav.dvl_anomaly): hold time [s] of a sample waiting for its answers; the
+    # anomaly rule: k-sigma of the VB R, chi-square probability of lambda, persistence window and count [samples]
+    dvl_learned: bool = False  # the tight DVL learns and compensates its beam errors (with learning; the service's)
+    dvl_answer_timeout_s: float = 0.5
+    dvl_anomaly_k_sigma: float = 3.0
+    dvl_anomaly_probability: float = 0.99
+    dvl_anomaly_window: int = 5
+    dvl_anomaly_min_count: int = 3
     nhc: bool = False  # non-holonomic constraint of a land vehicle (zennav.nav.aid.constraints)
     nhc_std_mps: float = 0.1  # 1-sigma of the constrained lateral and vertical body velocity [m/s]
     nhc_every_s: float = 0.1  # period of the constraint's updates [s of data time]

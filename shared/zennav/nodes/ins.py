@@ -123,7 +123,7 @@ class InsNode:
         config = nav_config(start["config"], self.filter_params)
         initial = M.map_to_dataclass(InitialState, initial_map)
         if self.learn is not None:
-            config = config.with_(learning=True)
+            config = config.with_(learning=True, dvl_learned="dvl_beam" in self.learn.targets)
             self.learn.reset(start["src"])
         self.nav = nav = Navigator(config, initial)
         self._initial, self._late, self._t_imu = initial_map, late, int(initial.t_ns)

@@ -90,6 +90,9 @@ class AidSource:
         """Fuse one input (its kind in ``inputs``) into the engine ``nav``; returns whether a measurement was fused."""
         raise NotImplementedError
 
+    def on_refusal(self, nav, query, reason: str) -> None:
+        """The compensator refused a query this source answers (Navigator.on_refusal); by default nothing waits."""
+
     def on_step(self, nav) -> None:
         """After every IMU sample (e.g. a timeout); the engine calls it only where a subclass defines it."""
 
