@@ -220,11 +220,11 @@ def _background(fn: Callable[[], _T]) -> Callable[[], _T]:
 
 def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: float,
             during: Callable[[Launcher, _Collector], object] | None = None,
-            prefixes: tuple[str, ...] = tuple(RUNS)) -> tuple[Path, _Collector]:
+            prefixes: tuple[str, ...] = tuple(RUNS), target: str = TARGET) -> tuple[Path, _Collector]:
     """Launch the process set until the recorder and the demo have every solution of each ins (prefixes: their
     nav prefixes); returns the recording's path and what the demo received. settings: the learning loop's (the
-    trainer gets them). during(launcher, collector): run in a thread while the set runs
-    (benchmarks/fault_injection.py kills services with it)."""
+    trainer gets them, with the target variant it learns). during(launcher, collector): run in a thread while the
+    set runs (benchmarks/fault_injection.py kills services with it)."""
     from .bus import Bus
 
     if not launch_file.is_file():
@@ -248,7 +248,7 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
         "--outage-every": [":".join(repr(float(x)) for x in spec.every)] if spec.every else []})
     svc["trainer"].command = _with_options(svc["trainer"].command, {
         "--model": [settings.model], "--optimizer": [settings.optimizer], "--seed": [settings.seed],
-        "--targets": [TARGET]})
+        "--targets": [target]})
     # a throwaway parameter-set signing pair and a fresh version state: the run's sets are signed, v1, v2, ...
     keys = Path(tempfile.mkdtemp(prefix="zennav-demo-keys-"))
     private, public = generate_keys(keys)

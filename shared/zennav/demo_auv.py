@@ -15,10 +15,12 @@
    4, 3, 2 orthogonal, 2 parallel, 1, 0 valid beams) and rejections. Writes nav.txt, nav.csv, metrics.json, the
    plots and the services' log.
 
-The learned DVL beam compensation (PSO-ANFIS with anomaly discrimination, issue 14 items 4-5) is not part of this
-set yet: it plugs in as the learning loop does in demo.yaml (the ins's --learning with its DVL target, the trainer
-and predictor already in deploy/auv.yaml) and then needs its in-process twin here (zennav.learn.loop) for the
-comparison. Until then the trainer and the predictor idle, and the demo says so.
+The learning loop runs over the bus with the target dvl_beam (seed 003): the ins sends each beam's features and
+error at the surface, the trainer fits the ANFIS (--compensation, default anfis-ipso: the improved PSO), the
+predictor answers each beam's predicted error under water and the ins's anomaly discrimination decides which
+beams it compensates (zennav.nav.aid.dvl_learned), in lockstep. The in-process twin (2.) runs the same loop
+(zennav.learn.loop.InProcessLoop) and must agree bit for bit; a third, in-process run without the learned
+compensation gives the comparison row. Prints what the loop did (sets, answers, the ins's decisions per beam).
 """
 from __future__ import annotations
 
@@ -28,7 +30,18 @@ from pathlib import Path
 
 import click
 
-from .demo import DemoSpec, _background, _verdict, compare, pipeline_result, recording_stats, run_set, write_plots
+from .demo import (
+    DemoSpec,
+    _background,
+    _learning_lines,
+    _verdict,
+    compare,
+    learning_over_the_bus,
+    pipeline_result,
+    recording_stats,
+    run_set,
+    write_plots,
+)
 from .metrics import dives, evaluate, format_table, write_outputs
 from .nav.types import NS
 from .replay import run_end_ns, run_replay
@@ -36,6 +49,7 @@ from .replay import run_end_ns, run_replay
 AUV_LAUNCH = Path(__file__).resolve().parents[2] / "deploy" / "auv.yaml"
 PROFILE = "auv"  # the vehicle profile of deploy/ins.yaml the set's ins runs (zennav-ins --profile auv)
 UNDERWATER_SOURCES = ("dvl", "dvl_loose", "depth")  # the ins's aid sources of an AUV (nav/aid/<source>)
+TARGET = "dvl_beam"  # the target variant the AUV's learning loop learns (zennav.nav.learning)
 
 
 def aid_records(recording: Path) -> dict[str, dict]:
@@ -83,6 +97,7 @@ def run_auv_demo(out: Path, spec: DemoSpec, launch_file: Path = AUV_LAUNCH) -> N
     """Everything `zennav demo --vehicle auv` does (see the module docstring); raises click.ClickException on
     failure."""
     from .datasets.registry import load_dataset
+    from .learn.loop import InProcessLoop
     from .learn.settings import compensation_settings
     from .params import nav_config
     from .replay_cli import filter_settings
@@ -98,14 +113,15 @@ def run_auv_demo(out: Path, spec: DemoSpec, launch_file: Path = AUV_LAUNCH) -> N
     click.echo(f"zennav demo --vehicle auv: {ds.name} ({duration_s:.0f} s: GNSS at the surface only, DVL "
                f"{ds.config.dvl_mode}, depth {'on' if ds.config.depth and ds.depth is not None else 'off'}), "
                f"profile {PROFILE}\n")
-    in_process = _background(lambda: run_replay(ds))
-    settings = compensation_settings(spec.compensation, spec.seed)  # the trainer's flags (it idles, see above)
-    recording, got = run_set(launch_file, out, spec, settings, limit_s=2.0 * duration_s + 300.0, prefixes=("",))
+    settings = compensation_settings(spec.compensation, spec.seed)
+    in_process = _background(lambda: (run_replay(ds, compensator=InProcessLoop(TARGET, settings)), run_replay(ds)))
+    recording, got = run_set(launch_file, out, spec, settings, limit_s=2.0 * duration_s + 300.0, prefixes=("",),
+                             target=TARGET)
     recorded, n_recorded = recording_stats(recording)
     pipe = pipeline_result(got, "", recorded, label=PROFILE)
     start, st = got.start, pipe.status
     assert start is not None  # pipeline_result raised without one
-    ref = in_process()
+    ref, plain = in_process()
     diff = compare(pipe.result, ref)
     records = aid_records(recording)
     n_got = {"imu": st["imu_count"], "gnss": st["gnss_count"], **(st.get("aid_counts") or {})}
@@ -117,10 +133,18 @@ def run_auv_demo(out: Path, spec: DemoSpec, launch_file: Path = AUV_LAUNCH) -> N
     click.echo("\n".join(_dive_lines(rows)))
     click.echo("\nDVL and depth:")
     click.echo("\n".join(_counter_lines(st, records)))
-    click.echo("  learned DVL beam compensation: not in this set (the ins runs without --learning; the trainer "
-               "and the predictor idle)")
+    lo = learning_over_the_bus(recording, st)
+    decisions = {k[len("dvl_learned_"):]: v for k, v in st["counters"].items() if k.startswith("dvl_learned_")}
+    click.echo(f"\nlearned DVL beam errors over the bus ({spec.compensation}, seed {spec.seed}):")
+    click.echo("\n".join(_learning_lines(lo)))
+    click.echo(f"  ins's decisions per beam (anomaly discrimination): {decisions or 'none'}")
+    plain_rows = dives(ds, plain)
+    click.echo("without the learned compensation (in process, same data):")
+    click.echo("\n".join(_dive_lines(plain_rows)))
     m = evaluate(ds, pipe.result)
     m["dives"] = rows
+    m["dives_without_learning"] = plain_rows
+    m["learning"] = {**lo, "decisions": decisions}
     m["pipeline"] = {"launch_file": str(launch_file), "recording": str(recording), "recorded_messages": n_recorded,
                      "ins_status": st, "vs_in_process": diff, "aid_records": records}
     write_outputs(out, ds, pipe.result, m)

@@ -9,6 +9,9 @@ COMPENSATIONS = ("anfis", "anfis-pso", "anfis-ipso", "elman")  # zennav.learn.se
 # --vehicle: default dataset, duration [s] and its other loader options (the AUV's DVL loses the bottom for 10 s
 # of its dive, so that the no-beam case shows too)
 VEHICLES = {"car": ("sim:car", 600.0, {}), "auv": ("sim:auv", 300.0, {"dvl_bottom_loss": "220:10"})}
+# --vehicle: the default learned compensation (the car: ANFIS with FR-CG, seed 000; the AUV's DVL beams: ANFIS with
+# the improved PSO, seed 003)
+DEFAULT_COMPENSATION = {"car": "anfis", "auv": "anfis-ipso"}
 
 
 @click.command()
@@ -28,9 +31,9 @@ VEHICLES = {"car": ("sim:car", 600.0, {}), "auv": ("sim:auv", 300.0, {"dvl_botto
               help="GNSS outage [s from the start] (repeatable)  [default: 300:60 unless --outage-every]")
 @click.option("--outage-every", "every", default=None, metavar="PERIOD:DURATION[:FIRST]",
               help="Periodic GNSS outages [s] (first at 60 s unless FIRST).")
-@click.option("--compensation", type=click.Choice(COMPENSATIONS), default="anfis", show_default=True,
-              help="The learning loop's model: ANFIS with FR-CG (seed 000) or PSO (seed 003) premises, or Elman "
-                   "(seed 002).")
+@click.option("--compensation", type=click.Choice(COMPENSATIONS), default=None,
+              help="The learning loop's model: ANFIS with FR-CG (seed 000), PSO or improved PSO (seed 003) "
+                   "premises, or Elman (seed 002)  [default: anfis, auv anfis-ipso]")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the learned model.")
 @click.option("--launch-file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The process set to run [deploy/demo.yaml, deploy/auv.yaml]; it needs 'record', 'ingest' and "
@@ -54,6 +57,7 @@ def demo(vehicle, out, dataset, duration, outages, every, compensation, seed, la
     from .replay_cli import _setup_logging
 
     _setup_logging(0)
+    compensation = compensation or DEFAULT_COMPENSATION[vehicle]
     dataset = dataset or VEHICLES[vehicle][0]
     out = out or Path("out/demo" if vehicle == "car" else f"out/demo-{vehicle}")
     sim = dataset.startswith("sim:")
