@@ -41,10 +41,11 @@ def run(job: tuple) -> tuple:
     from zennav.replay_cli import filter_settings
 
     torch.set_num_threads(1)
-    spec, length, constraints, compensation, seed = job
+    spec, length, constraints, compensation, seed, forward_only = job
     wall = time.perf_counter()
     ds = load_dataset(spec)
-    ds.config = nav_config(ds.config, filter_settings(spec, None, None, list(constraints)))
+    ds.config = nav_config(ds.config, filter_settings(spec, None, None, list(constraints))).with_(
+        learn_forward_only=forward_only)
     compensator = make_compensator(compensation, "body_velocity", seed)
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     nav = Navigator(config, ds.initial)

@@ -89,6 +89,7 @@ FILTER: dict[str, Param] = {
     "learn_after_s": Param("learning", "s"),
     "learn_horizon_s": Param("learning", "s"),
     "learn_answer_max_age_s": Param("learning", "s"),
+    "learn_forward_only": Param("learning", "", "bool"),
     # vehicle-motion constraints
     "nhc": Param("constraints", "", "bool"),
     "nhc_std_mps": Param("constraints", "m/s"),

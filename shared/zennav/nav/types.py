@@ -296,6 +296,7 @@ class NavConfig:
     learn_after_s: float = 30.0  # no training samples before this time [s] from the start (filter converging)
     learn_horizon_s: float = 60.0  # longest outage the "drift" target learns [s] (shadow INS length)
     learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
+    learn_forward_only: bool = False  # with nhc: fuse only the forward output of the learned body velocity
     nhc: bool = False  # non-holonomic constraint of a land vehicle (zennav.nav.aid.constraints)
     nhc_std_mps: float = 0.1  # 1-sigma of the constrained lateral and vertical body velocity [m/s]
     nhc_every_s: float = 0.1  # period of the constraint's updates [s of data time]
