@@ -10,7 +10,7 @@ sim:car (600 s, MEMS, its odometer 2 % fast with 0.05 m/s noise): the same windo
 odometer (scale-factor state estimated), and the scale factor's final estimate.
 
     .venv/bin/python benchmarks/constraints.py [--windows 10,30,60] [--seeds 0,1,2] [--jobs 2] [--no-learned]
-        [--datasets rtklibexplorer,sim:car]
+        [--datasets rtklibexplorer,sim:car] [--forward-only]
 """
 from __future__ import annotations
 
@@ -28,8 +28,8 @@ LEARNED = ("anfis", "elman")
 
 
 def run(job: tuple) -> tuple:
-    """One product run: (spec, window length, constraint names, compensation, seed) -> (job, per-window maxima,
-    odometer scale (estimate, 1-sigma, truth) or None, wall s)."""
+    """One product run: (spec, window length, constraint names, compensation, seed, learn_forward_only) -> (job,
+    per-window maxima, odometer scale (estimate, 1-sigma, truth) or None, wall s)."""
     import torch
 
     from zennav.datasets.registry import load_dataset
@@ -70,6 +70,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--no-learned", action="store_true", help="skip the learned rows (minutes each)")
     ap.add_argument("--datasets", default="rtklibexplorer,sim:car")
+    ap.add_argument("--forward-only", action="store_true",
+                    help="learned rows fuse the forward body velocity alone (learn_forward_only)")
     args = ap.parse_args()
     lengths = [float(x) for x in args.windows.split(",")]
     seeds = [int(x) for x in args.seeds.split(",")]
@@ -77,11 +79,12 @@ def main() -> None:
     jobs = []
     for length in lengths:
         if "rtklibexplorer" in specs:
-            jobs += [("rtklibexplorer", length, cons, "none", 0) for _, cons in ROWS]
+            jobs += [("rtklibexplorer", length, cons, "none", 0, False) for _, cons in ROWS]
             if not args.no_learned:
-                jobs += [("rtklibexplorer", length, ("nhc", "zupt"), model, s) for model in LEARNED for s in seeds]
+                jobs += [("rtklibexplorer", length, ("nhc", "zupt"), model, s, args.forward_only)
+                         for model in LEARNED for s in seeds]
         if "sim:car" in specs:
-            jobs += [("sim:car", length, cons, "none", 0) for _, cons in SIM_ROWS]
+            jobs += [("sim:car", length, cons, "none", 0, False) for _, cons in SIM_ROWS]
     wall = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
         results = {job: (drifts, scale, w) for job, drifts, scale, w in pool.map(run, jobs)}
@@ -92,21 +95,21 @@ def main() -> None:
         print(f"\n{spec}\n{'window':>7}{'constraints':>14}{'learned':>14}{'windows':>9}{'RMS m':>9}{'max m':>9}"
               f"{'vs INS':>9}")
         for length in lengths:
-            base = _stats(results[(spec, length, (), "none", 0)][0])[0]
+            base = _stats(results[(spec, length, (), "none", 0, False)][0])[0]
 
             def line(label, learned, n, rms, mx, base=base, length=length):
                 print(f"{length:>6.0f}s{label:>14}{learned:>14}{n:>9}{rms:>9.2f}{mx:>9.2f}"
                       f"{100.0 * (rms - base) / base:>8.0f}%")
 
             for label, cons in rows:
-                drifts, scale, _ = results[(spec, length, cons, "none", 0)]
+                drifts, scale, _ = results[(spec, length, cons, "none", 0, False)]
                 line(label, "", len(drifts), *_stats(drifts))
                 if scale is not None:
                     print(f"{'':>21}odometer scale error {100 * scale[0]:.3f} % +- {100 * scale[1]:.3f} % "
                           f"(simulated {100 * scale[2]:.3f} %)")
             if spec == "rtklibexplorer" and not args.no_learned:
                 for model in LEARNED:
-                    runs = [results[(spec, length, ("nhc", "zupt"), model, s)][0] for s in seeds]
+                    runs = [results[(spec, length, ("nhc", "zupt"), model, s, args.forward_only)][0] for s in seeds]
                     for s, drifts in zip(seeds, runs):
                         line("NHC+ZUPT", f"{model} s{s}", len(drifts), *_stats(drifts))
                     stats = np.array([_stats(d) for d in runs])
