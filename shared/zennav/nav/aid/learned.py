@@ -8,7 +8,9 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
 - "body_velocity": the velocity in the body frame [m/s, FRD] (zennav.nav.aiding.body_velocity_model); with the
   non-holonomic constraint on and NavConfig.learn_forward_only, its forward output alone (a learned odometer: the
   constraint already gives the lateral and vertical velocity, and fusing the learned ones as well would count that
-  information twice).
+  information twice). On the rtklibexplorer drive it does not help: the NHC+ZUPT drift is mostly along-track (a
+  forward-speed error of at most about 1.2-1.7 m/s RMS over a window), while the learned forward speed is off by
+  2.5-5 m/s RMS on the held-out windows (benchmarks/constraints.py --forward-only).
 
 An answer is fused only if no GNSS position fix was fused after its query's time (else learned_stale: the filter
 already knows better) and the query is at most NavConfig.learn_answer_max_age_s of data time old (else
