@@ -7,10 +7,10 @@ per-window maximum horizontal error and the horizontal RMS of the whole run (out
 states, medians over seeds; and the consistency of the 21-state filter's final scale-factor estimates,
 rms(error / sigma) over axes and seeds, per sensor (1 means consistent): over all axes, and apart over the axes the
 run observed (final sigma below OBSERVED_RATIO of the prior sigma) and those it left at their prior. An axis left at
-its prior (a car's roll and pitch gyro scale: its roll and pitch rates are small) has error / sigma = -truth /
-sigma_prior whatever the filter does: it samples the simulator's draw (expectation 1, but over 15 axes its rms lies
-in [0.65, 1.35] only 95 % of the time), so the filter's consistency is judged on the observed axes; the draw's own
-rms on the prior-bound axes is printed beside it.
+its prior (a car's roll gyro scale: its roll rates are small) has error / sigma = -truth / sigma_prior whatever the
+filter does: it samples the simulator's draw (expectation 1, but over 15 axes the rms of unit normals lies in
+[0.65, 1.35] only 95 % of the time; the draw's own rms on those axes is printed beside it); the observed axes tell
+whether the filter's sigma of what it estimated is right.
 
     .venv/bin/python benchmarks/scale_factors.py [--seeds 0,1,2,3,4] [--ppm 3000] [--windows 30,60]
 """
