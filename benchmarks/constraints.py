@@ -3,14 +3,17 @@ standstills, the odometer, and the learned compensation stacked on them.
 
 rtklibexplorer (real car, MEMS IMU, RTK reference): GNSS withheld for L = 10, 30, 60 s every 90 s, the first at
 120 s; per row the RMS and the maximum over the windows of the per-window maximum horizontal drift, and the change
-of that RMS against pure INS. Rows: pure INS; NHC; NHC+ZUPT; NHC+ZUPT with learned compensation (anfis, elman;
-each for --seeds, and their median). Each row is one product run, the same as
+of that RMS against pure INS, and the RMS of the along-track and cross-track parts of each window's peak error
+(against the true course: the forward-speed and heading parts of the drift). Rows: pure INS; NHC; NHC+ZUPT;
+NHC+ZUPT with learned compensation (anfis, elman; each for --seeds, and their median; with --forward-only the
+learned body velocity gives the forward speed alone, NavConfig.learn_forward_only). Each row is one product run,
+the same as
     zennav replay rtklibexplorer --outage-every 90:L:120 --constraints nhc,zupt [--compensation anfis --seed S]
 sim:car (600 s, MEMS, its odometer 2 % fast with 0.05 m/s noise): the same windows, NHC+ZUPT without and with the
 odometer (scale-factor state estimated), and the scale factor's final estimate.
 
     .venv/bin/python benchmarks/constraints.py [--windows 10,30,60] [--seeds 0,1,2] [--jobs 2] [--no-learned]
-        [--datasets rtklibexplorer,sim:car]
+        [--datasets rtklibexplorer,sim:car] [--forward-only]
 """
 from __future__ import annotations
 
@@ -28,8 +31,8 @@ LEARNED = ("anfis", "elman")
 
 
 def run(job: tuple) -> tuple:
-    """One product run: (spec, window length, constraint names, compensation, seed) -> (job, per-window maxima,
-    odometer scale (estimate, 1-sigma, truth) or None, wall s)."""
+    """One product run: (spec, window length, constraint names, compensation, seed, learn_forward_only) -> (job,
+    per-window maxima, odometer scale (estimate, 1-sigma, truth) or None, wall s)."""
     import torch
 
     from zennav.datasets.registry import load_dataset
@@ -41,20 +44,50 @@ def run(job: tuple) -> tuple:
     from zennav.replay_cli import filter_settings
 
     torch.set_num_threads(1)
-    spec, length, constraints, compensation, seed = job
+    spec, length, constraints, compensation, seed, forward_only = job
     wall = time.perf_counter()
     ds = load_dataset(spec)
-    ds.config = nav_config(ds.config, filter_settings(spec, None, None, list(constraints)))
+    ds.config = nav_config(ds.config, filter_settings(spec, None, None, list(constraints))).with_(
+        learn_forward_only=forward_only)
     compensator = make_compensator(compensation, "body_velocity", seed)
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     nav = Navigator(config, ds.initial)
     res = run_replay(ds, outage_every=(PERIOD_S, length, FIRST_S), navigator=nav, compensator=compensator)
     drifts = [o["max_horizontal_m"] for o in evaluate(ds, res)["outages"]]
+    parts = along_cross(ds, res)
     scale = None
     if "odo_scale" in nav.aug_blocks:
         sl = nav.aug_blocks["odo_scale"]
         scale = (float(nav.aug_value(sl)[0]), math.sqrt(nav.P[sl, sl][0, 0]), ds.notes.get("odo_scale_error"))
-    return job, drifts, scale, time.perf_counter() - wall
+    return job, drifts, parts, scale, time.perf_counter() - wall
+
+
+def along_cross(ds, res) -> np.ndarray | None:
+    """Per withheld window, the along-track and cross-track components [m] of the horizontal error at its peak
+    (the error of evaluate's per-window maximum), along the true course at the peak (the last true velocity
+    faster than 1 m/s up to it): the forward-speed and heading parts of the drift. None without true velocity."""
+    from zennav.metrics import antenna_llh, ned_errors
+
+    truth = ds.truth
+    if truth is None or truth.v_n is None:
+        return None
+    sel = (truth.t_ns >= res.t_ns[0]) & (truth.t_ns <= res.t_ns[-1])
+    t_ref, v_ref = truth.t_ns[sel], truth.v_n[sel]
+    llh = antenna_llh(res.llh, res.q_nb, ds.config.lever_arm_b) if truth.at_antenna else res.llh
+    est = np.stack([np.interp((t_ref - res.t_ns[0]).astype(float), (res.t_ns - res.t_ns[0]).astype(float), llh[:, i])
+                    for i in range(3)], -1)
+    err = ned_errors(est, truth.llh[sel])[:, :2]
+    moving = np.flatnonzero(np.hypot(v_ref[:, 0], v_ref[:, 1]) > 1.0)
+    out = []
+    for a, b in res.windows:
+        inside = np.flatnonzero((t_ref >= a) & (t_ref < b))
+        if len(inside) == 0:
+            continue
+        k = inside[np.argmax(np.hypot(err[inside, 0], err[inside, 1]))]
+        j = moving[max(int(np.searchsorted(moving, k, side="right")) - 1, 0)]
+        u = v_ref[j, :2] / np.hypot(v_ref[j, 0], v_ref[j, 1])
+        out.append((err[k] @ u, err[k] @ np.array([-u[1], u[0]])))
+    return np.array(out)
 
 
 def _stats(drifts) -> tuple[float, float]:
@@ -69,6 +102,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--no-learned", action="store_true", help="skip the learned rows (minutes each)")
     ap.add_argument("--datasets", default="rtklibexplorer,sim:car")
+    ap.add_argument("--forward-only", action="store_true",
+                    help="learned rows fuse the forward body velocity alone (learn_forward_only)")
     args = ap.parse_args()
     lengths = [float(x) for x in args.windows.split(",")]
     seeds = [int(x) for x in args.seeds.split(",")]
@@ -76,38 +111,45 @@ def main() -> None:
     jobs = []
     for length in lengths:
         if "rtklibexplorer" in specs:
-            jobs += [("rtklibexplorer", length, cons, "none", 0) for _, cons in ROWS]
+            jobs += [("rtklibexplorer", length, cons, "none", 0, False) for _, cons in ROWS]
             if not args.no_learned:
-                jobs += [("rtklibexplorer", length, ("nhc", "zupt"), model, s) for model in LEARNED for s in seeds]
+                jobs += [("rtklibexplorer", length, ("nhc", "zupt"), model, s, args.forward_only)
+                         for model in LEARNED for s in seeds]
         if "sim:car" in specs:
-            jobs += [("sim:car", length, cons, "none", 0) for _, cons in SIM_ROWS]
+            jobs += [("sim:car", length, cons, "none", 0, False) for _, cons in SIM_ROWS]
     wall = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
-        results = {job: (drifts, scale, w) for job, drifts, scale, w in pool.map(run, jobs)}
-    print(f"GNSS withheld for L s every {PERIOD_S:g} s from {FIRST_S:g} s; per-window maximum horizontal drift [m]")
+        results = {job: (drifts, parts, scale, w) for job, drifts, parts, scale, w in pool.map(run, jobs)}
+    print(f"GNSS withheld for L s every {PERIOD_S:g} s from {FIRST_S:g} s; per-window maximum horizontal drift [m]; "
+          "along / cross: RMS of the along- and cross-track parts of each window's peak error [m]\neach row is the "
+          f"product run  zennav replay DATASET --outage-every {PERIOD_S:g}:L:{FIRST_S:g} --constraints LIST "
+          "[--compensation MODEL --seed S]" + (" with learn_forward_only: true in --params FILE" if args.forward_only
+                                                else ""))
     for spec, rows in (("rtklibexplorer", ROWS), ("sim:car", SIM_ROWS)):
         if spec not in specs:
             continue
         print(f"\n{spec}\n{'window':>7}{'constraints':>14}{'learned':>14}{'windows':>9}{'RMS m':>9}{'max m':>9}"
-              f"{'vs INS':>9}")
+              f"{'vs INS':>9}{'along m':>9}{'cross m':>9}")
         for length in lengths:
-            base = _stats(results[(spec, length, (), "none", 0)][0])[0]
+            base = _stats(results[(spec, length, (), "none", 0, False)][0])[0]
 
-            def line(label, learned, n, rms, mx, base=base, length=length):
+            def line(label, learned, n, rms, mx, parts=None, base=base, length=length):
+                split = "" if parts is None else "".join(f"{np.sqrt(np.mean(p**2)):>9.2f}" for p in parts.T)
                 print(f"{length:>6.0f}s{label:>14}{learned:>14}{n:>9}{rms:>9.2f}{mx:>9.2f}"
-                      f"{100.0 * (rms - base) / base:>8.0f}%")
+                      f"{100.0 * (rms - base) / base:>8.0f}%{split}")
 
             for label, cons in rows:
-                drifts, scale, _ = results[(spec, length, cons, "none", 0)]
-                line(label, "", len(drifts), *_stats(drifts))
+                drifts, parts, scale, _ = results[(spec, length, cons, "none", 0, False)]
+                line(label, "", len(drifts), *_stats(drifts), parts)
                 if scale is not None:
                     print(f"{'':>21}odometer scale error {100 * scale[0]:.3f} % +- {100 * scale[1]:.3f} % "
                           f"(simulated {100 * scale[2]:.3f} %)")
             if spec == "rtklibexplorer" and not args.no_learned:
                 for model in LEARNED:
-                    runs = [results[(spec, length, ("nhc", "zupt"), model, s)][0] for s in seeds]
-                    for s, drifts in zip(seeds, runs):
-                        line("NHC+ZUPT", f"{model} s{s}", len(drifts), *_stats(drifts))
+                    learned = [results[(spec, length, ("nhc", "zupt"), model, s, args.forward_only)] for s in seeds]
+                    runs = [r[0] for r in learned]
+                    for s, (drifts, parts, _, _) in zip(seeds, learned):
+                        line("NHC+ZUPT", f"{model} s{s}", len(drifts), *_stats(drifts), parts)
                     stats = np.array([_stats(d) for d in runs])
                     line("NHC+ZUPT", f"{model} median", len(runs[0]), *np.median(stats, axis=0).tolist())
     print(f"\n{len(jobs)} runs in {time.perf_counter() - wall:.0f} s with {args.jobs} processes")

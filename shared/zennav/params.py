@@ -92,6 +92,7 @@ FILTER: dict[str, Param] = {
     "learn_after_s": Param("learning", "s"),
     "learn_horizon_s": Param("learning", "s"),
     "learn_answer_max_age_s": Param("learning", "s"),
+    "learn_forward_only": Param("learning", "", "bool"),
     "dvl_answer_timeout_s": Param("learning", "s"),
     "dvl_anomaly_k_sigma": Param("learning", ""),
     "dvl_anomaly_probability": Param("learning", ""),

@@ -233,6 +233,31 @@ def test_acceleration_compensation_holds_the_tilt_the_filter_alone_loses():
     assert ref.counts["applied"] == len(t) - 10 and ref.counts["stale"] == 0
 
 
+def test_acceleration_reference_levelling_window_takes_the_mean_acceleration():
+    """Over a held levelling window dv_b/dt is the velocity change across it over its span (a velocity step at its
+    end, as an ins velocity at a GNSS update, counts once over the window, where the newest 0.1 s difference
+    would read it as 2 m/s^2 more), v_b the newest sample at each time; too short a span falls back to ``at``."""
+    from zennav.attitude.acceleration import AccelerationReference
+
+    s = 1_000_000_000
+    ref = AccelerationReference(min_span_s=0.1, max_age_s=1.0)
+    times = [k * s // 100 for k in range(51)]  # 0.5 s at 100 Hz: 1 m/s^2 forward, a 0.2 m/s step at the end
+    for t in times:
+        ref.add(t, (5.0 + t / s + (0.2 if t == times[-1] else 0.0), 0.0, 0.0))
+    out = ref.window(times, [(0.0, 0.0, 0.1)] * len(times))
+    a_b, v_b = out[-1]
+    assert a_b == pytest.approx((1.0 + 0.2 / 0.5, 0.1 * 5.7, 0.0)) and v_b == pytest.approx((5.7, 0.0, 0.0))
+    assert out[10][1] == pytest.approx((5.1, 0.0, 0.0)) and ref.counts["applied"] == len(times)
+    ref = AccelerationReference(min_span_s=0.1, max_age_s=1.0)
+    for t in times:
+        ref.add(t, (5.0 + t / s + (0.2 if t == times[-1] else 0.0), 0.0, 0.0))
+    assert ref.at(times[-1], ZERO)[0][0] == pytest.approx(1.0 + 0.2 / 0.1)  # the newest difference, for contrast
+    ref = AccelerationReference(min_span_s=0.2, max_age_s=1.0)
+    ref.add(0, (5.0, 0.0, 0.0))
+    ref.add(s // 10, (5.1, 0.0, 0.0))
+    assert ref.window([0, s // 10], [ZERO, ZERO]) == [None, None] and ref.counts["none"] == 2
+
+
 def test_acceleration_reference_differences_holds_and_rejects():
     """dv_b/dt over the newest span >= min_span, extrapolated with the jerk between differences >= min_span apart,
     omega x v_b with v_b extrapolated; a sample waits until the IMU reaches its time; stale estimates, gaps,

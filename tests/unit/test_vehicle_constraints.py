@@ -234,3 +234,23 @@ def test_state_round_trip_mid_standstill(car):
     n, snap = int(103.0 * 200), int(102.0 * 200) + 7
     ref, got = _outputs(car, config, n, None), _outputs(car, config, n, snap)
     assert got == ref
+
+
+def test_learned_forward_only_leaves_the_lateral_and_vertical_to_the_nhc(car):
+    """With the NHC on and learn_forward_only, a learned body velocity changes the forward body velocity alone;
+    without learn_forward_only its lateral and vertical outputs are fused as well."""
+    from zennav.nav.learning import LearnQuery
+
+    lateral = {}
+    for forward_only in (False, True):
+        config = car.config.with_(nhc=True, learning=True, learn_forward_only=forward_only)
+        nav = Navigator(config, car.initial)
+        v_b0 = nav.state.C_nb.T @ nav.state.v_n
+        sigma = float(nav.std_v_n.min())  # answers one sigma of the velocity away, as sure as the filter
+        query = LearnQuery(nav.t_ns, "body_velocity", np.zeros(12), 1.0)
+        assert nav.on_correction(query, v_b0 + sigma, np.full(3, sigma))
+        dv_b = nav.state.C_nb.T @ nav.state.v_n - v_b0
+        assert dv_b[0] > 0.2 * sigma
+        lateral[forward_only] = np.abs(dv_b[1:])
+    assert np.all(lateral[False] > 0.2 * sigma)
+    np.testing.assert_allclose(lateral[True], 0.0, atol=0.01 * sigma)  # through P's correlations only

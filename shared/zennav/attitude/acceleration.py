@@ -73,7 +73,8 @@ class AccelerationReference:
 
     ``add(t_ns, v_b)`` queues a sample (returns '' or the rejection reason); ``at(t_ns, omega_b)`` gives
     ``(a_b, v_b)`` at an IMU sample with the bias-corrected gyro ``omega_b`` [rad/s], or None when there is no
-    fresh estimate. jerk: extrapolate dv_b/dt with the jerk (a low-rate source).
+    fresh estimate; ``window`` gives them over a held levelling window, with its mean acceleration.
+    jerk: extrapolate dv_b/dt with the jerk (a low-rate source).
     ``counts``: velocity (accepted), not_finite, not_increasing, queue_full (rejected), gap (difference restarted),
     applied, stale (IMU samples with an estimate: used / too old), none (IMU samples before any estimate)."""
 
@@ -128,6 +129,41 @@ class AccelerationReference:
             inv = NS / (t_mid - older[0])
             jerk = ((dv[0] - older[1][0]) * inv, (dv[1] - older[1][1]) * inv, (dv[2] - older[1][2]) * inv)
         self._est = (t_ns, v, t_mid, dv, jerk)
+
+    def window(self, t_ns: list[int], omega_b: list) -> list[tuple | None]:
+        """(a_b, v_b) at each IMU time of a levelling window (t_ns increasing) with the bias-corrected gyro
+        omega_b [rad/s], from the velocity samples up to its end: dv_b/dt is the change of v_b from the newest
+        sample at or before the window's start (the first one after it if none) to the newest at or before its
+        end, over their span: the window's mean acceleration, whatever the velocity did inside it (the step of an
+        ins velocity at a GNSS update counts once over the window, where the newest min_span_s difference of
+        ``at`` would take it as an acceleration of its own); v_b is the newest sample at or before each time (the
+        first before any) and a_b = dv_b/dt + omega_b x v_b, so the window's mean of a_b is that of the vehicle.
+        A span shorter than min_span_s or a sample older than max_age_s: ``at`` with the estimate known at the
+        end, as before. Counted as ``at``."""
+        end = t_ns[-1]
+        got = []
+        q = self._queue
+        while q and q[0][0] <= end:
+            item = q.popleft()
+            self._reach(*item)
+            got.append(item)
+        first = next((g for g in reversed(got) if g[0] <= t_ns[0]), got[0] if got else None)
+        if first is None or got[-1][0] - first[0] < self.min_span_ns or any(
+                b[0] - a[0] > self.max_age_ns for a, b in zip(got, got[1:])) or end - got[-1][0] > self.max_age_ns:
+            return [self.at(t, w, end) for t, w in zip(t_ns, omega_b)]
+        t0, v0 = first
+        t1, v1 = got[-1]
+        inv = NS / (t1 - t0)
+        ax, ay, az = ((v1[0] - v0[0]) * inv, (v1[1] - v0[1]) * inv, (v1[2] - v0[2]) * inv)
+        out: list[tuple | None] = []
+        k = 0
+        for t, (wx, wy, wz) in zip(t_ns, omega_b):
+            while k + 1 < len(got) and got[k + 1][0] <= t:
+                k += 1
+            vx, vy, vz = got[k][1]
+            self.counts["applied"] += 1
+            out.append(((ax + wy * vz - wz * vy, ay + wz * vx - wx * vz, az + wx * vy - wy * vx), (vx, vy, vz)))
+        return out
 
     def at(self, t_ns: int, omega_b, known_ns: int | None = None) -> tuple | None:
         """(a_b, v_b) at IMU time t_ns: a_b = dv_b/dt + omega_b x v_b [m/s^2] and the extrapolated v_b [m/s];

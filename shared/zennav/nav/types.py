@@ -296,6 +296,7 @@ class NavConfig:
     learn_after_s: float = 30.0  # no training samples before this time [s] from the start (filter converging)
     learn_horizon_s: float = 60.0  # longest outage the "drift" target learns [s] (shadow INS length)
     learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
+    learn_forward_only: bool = False  # with nhc: fuse only the forward output of the learned body velocity
     # learned DVL beam errors (zennav.nav.dvl_anomaly): hold time [s] of a sample waiting for its answers; the
     # anomaly rule: k-sigma of the VB R, chi-square probability of lambda, persistence window and count [samples]
     dvl_learned: bool = False  # the tight DVL learns and compensates its beam errors (with learning; the service's)

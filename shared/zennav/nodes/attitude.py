@@ -24,8 +24,8 @@ default: nav/solution's v_n resolved in b with the solution's q_nb), ``gnss`` (t
 forward axis, for when no ins runs; its differences extrapolated with the jerk), ``none`` (the accelerometer
 alone, as before). Velocity samples are taken in sample-time order as the IMU stream reaches them; an estimate
 older than ``accel_max_age_s`` at an IMU sample is not used (counted as stale). The levelling window is
-compensated with the estimate known at its end. The a_b and v_b applied are published with each sample (zeros
-when none was fresh), so a consumer can reproduce the output.
+compensated with its mean acceleration: the velocity change across it (AccelerationReference.window). The a_b and
+v_b applied are published with each sample (zeros when none was fresh), so a consumer can reproduce the output.
 """
 from __future__ import annotations
 
@@ -200,7 +200,11 @@ class AttitudeNode:
     def _run_held(self) -> None:
         held, self._held, self._levelled = self._held, [], True
         assert self.filter is not None  # samples are held only after on_start (_start) built it
-        refs = [self._accel_at(h[0], h[2], held[-1][0]) for h in held]
+        refs: list[tuple] = [(None, None)] * len(held)  # (a_b, v_b) of each held sample
+        if self.accel is not None:
+            bg = self._bias
+            refs = [r if r is not None else (ZERO3, ZERO3) for r in self.accel.window(
+                [h[0] for h in held], [(w[0] - bg[0], w[1] - bg[1], w[2] - bg[2]) for w in (h[2] for h in held)])]
         a_b, v_b = (None, None) if self.accel is None else (np.array([r[0] for r in refs]),
                                                             np.array([r[1] for r in refs]))
         b = self.filter.batch(np.array([h[2] for h in held]), np.array([h[3] for h in held]),

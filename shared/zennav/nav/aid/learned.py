@@ -5,7 +5,12 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
 - "drift": N and E error of the free-running INS since the last fix [m], fused into the position alone (a Schmidt
   update: velocity, attitude and biases stay as they are, as in the shadow INSs the model learned from); the
   position shift it applies is kept by the learning tap until the next fix;
-- "body_velocity": the velocity in the body frame [m/s, FRD] (zennav.nav.aiding.body_velocity_model).
+- "body_velocity": the velocity in the body frame [m/s, FRD] (zennav.nav.aiding.body_velocity_model); with the
+  non-holonomic constraint on and NavConfig.learn_forward_only, its forward output alone (a learned odometer: the
+  constraint already gives the lateral and vertical velocity, and fusing the learned ones as well would count that
+  information twice). On the rtklibexplorer drive it does not help: the NHC+ZUPT drift is mostly along-track (a
+  forward-speed error of at most about 1.2-1.7 m/s RMS over a window), while the learned forward speed is off by
+  2.5-5 m/s RMS on the held-out windows (benchmarks/constraints.py --forward-only).
 
 An answer is fused only if no GNSS position fix was fused after its query's time (else learned_stale: the filter
 already knows better) and the query is at most NavConfig.learn_answer_max_age_s of data time old (else
@@ -32,6 +37,8 @@ class LearnedSource(AidSource):
         super().__init__(f"learned_{target}")
         self.target = target
         self.max_age_ns = int(config.learn_answer_max_age_s * NS)
+        # rows of the body-velocity answer that are fused (FRD)
+        self.body_rows = [0] if config.nhc and config.learn_forward_only else [0, 1, 2]
 
     def on_input(self, nav, answer: tuple[LearnQuery, object, object]) -> bool:
         """answer: (query, value, std) with value and its 1-sigma std in the units of the target."""
@@ -52,7 +59,8 @@ class LearnedSource(AidSource):
         nav.propagate_covariance()
         if self.target == "body_velocity":
             z, H = body_velocity_model(nav.state, value)
-            return nav.update(self, Measurement(query.t_ns, value, z, H, np.diag(np.square(std))))
+            rows = self.body_rows
+            return nav.update(self, Measurement(query.t_ns, value, z[rows], H[rows], np.diag(np.square(std[rows]))))
         H = np.zeros((2, N_STATES))
         first = 3 if self.target == "velocity" else 0
         H[0, first], H[1, first + 1] = 1.0, 1.0
