@@ -98,7 +98,7 @@ def make_certs(out_dir: str | os.PathLike, hosts: Iterable[str] = (), days: floa
                 .add_extension(_san(names), critical=False)
                 .add_extension(x509.AuthorityKeyIdentifier.from_issuer_subject_key_identifier(ca_ski), critical=False)
                 .sign(ca_key, hashes.SHA256()))
-        password = secrets.token_urlsafe(24)
+        password = secrets.token_hex(24)  # hex: never starts with "-", which a CLI would take for an option
         dictionary.append(f"{ident}:{password}\n")
         for fname, data, private in ((f"{ident}.pem", cert.public_bytes(pem), False),
                                      (f"{ident}.key", key_pem(key), True),

@@ -54,9 +54,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dvl-id", default="0")
     p.add_argument("--depth-id", default="0")
     p.add_argument("--solution-every", type=int, default=1, help="publish every N-th solution")
-    p.add_argument("--queue", type=int, default=1024,
+    p.add_argument("--queue", type=int, default=8192,
                    help="sensor queue capacity in messages (back-pressure beyond; every queued message holds zenoh's "
-                        "receive buffer: 8192 cost about 100 MB of resident memory, benchmarks/memory.py)")
+                        "receive buffer: 8192 cost about 100 MB of resident memory, benchmarks/memory.py; but a "
+                        "restarted ins's history fetch from the ingest's cache needs the room: with 1024 the resume "
+                        "from a checkpoint 10,000 samples back never completes, tests/integration/"
+                        "test_fault_tolerance.py)")
     p.add_argument("--learning", action="store_true",
                    help="learning loop: publish learn/samples and learn/query, fuse learn/correction (off: the "
                         "core runs exactly as the in-process replay)")
