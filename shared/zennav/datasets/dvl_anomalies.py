@@ -152,7 +152,7 @@ def inject(dvl: DvlData, spec, B: np.ndarray, seed: int = 0, t_from_ns: int | No
     velocity_d = None if dvl.velocity_d is None else dvl.velocity_d.copy()
     velocity_valid = None if dvl.velocity_valid is None else dvl.velocity_valid.copy()
     if velocity_d is not None and velocity_valid is not None:
-        for k in np.flatnonzero(touched):  # a DVL's own solution needs three beams
+        for k in np.flatnonzero(touched).tolist():  # a DVL's own solution needs three beams
             ok = bool(valid[k].sum() >= 3)
             velocity_d[k] = velocity_from_beams(beams[k], valid[k], B) if ok else np.nan
             velocity_valid[k] = ok

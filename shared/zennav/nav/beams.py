@@ -68,7 +68,7 @@ def reconstruct_beams(beams, valid) -> np.ndarray | None:
         out[k] = out[pair[0]] + out[pair[1]] - out[_OPPOSITE[k]]
         return out
     if case == "2_orthogonal":
-        for k in np.flatnonzero(~v):
+        for k in np.flatnonzero(~v).tolist():
             out[k] = -out[_OPPOSITE[k]]
         return out
     return None

@@ -71,7 +71,7 @@ class LearnedDvl(DvlTight):
         if not measured.any():
             return self.fuse(nav, sample)
         self.held = _Held(sample, features, measured, int(sample.t_ns) + self.timeout_ns)
-        for i in np.flatnonzero(measured):
+        for i in np.flatnonzero(measured).tolist():
             nav.tap.queries.append(LearnQuery(int(sample.t_ns), TARGET, _features(features, i), 0.0, int(i)))
         return False
 
@@ -80,7 +80,7 @@ class LearnedDvl(DvlTight):
         beams, valid = self.beams_of(sample)
         v_d, _ = self.velocity(nav)
         error = beams - self.B @ v_d
-        for i in np.flatnonzero(valid & np.array([k == "measured" for k in f.kind])):
+        for i in np.flatnonzero(valid & np.array([k == "measured" for k in f.kind])).tolist():
             nav.tap.samples.append(LearnSample(int(sample.t_ns), TARGET, _features(f, i), np.array([error[i]])))
 
     def answer(self, nav, query: LearnQuery, value, std) -> bool:
