@@ -38,7 +38,7 @@ from dataclasses import replace
 
 from zennav.datasets.errors import DataError
 from zennav.messages import AID_STREAMS
-from zennav.nodes.ingest import Progress, hold_while_down, outage_arg, stream, wait_matching
+from zennav.nodes.ingest import make_hold, outage_arg, stream, wait_for_consumers, wait_for_end
 from zennav.replay import parse_outage, parse_outage_every, sensor_events
 from zennav.service import EndAcks, ServiceRunner, add_bus_args
 from zennav.stream import stream_messages
@@ -162,27 +162,14 @@ def _run(run, args, speed: float, acks: EndAcks, pubs: dict, aid_publisher, stat
         log.info("%s: %d IMU samples, %d GNSS fixes%s, %d outage windows; speed %s", ds.name, n["imu"], n["gnss"],
                  "".join(f", {n[a]} {a} samples" for a in aids), len(windows), "max" if speed == 0 else speed)
         waits = [s for s in args.wait_for.split(",") if s]
-        if waits:
-            run.set_state("starting", f"waiting for {','.join(waits)}")
-            if not run.bus.wait_alive(waits, args.wait_timeout):
-                log.error("gave up waiting for %s (alive: %s)", waits, sorted(run.bus.alive()))
-                run.set_state("error", f"{waits} not alive")
-                return 2
-            if not wait_matching((pubs["imu"], pubs["stream"]), args.wait_timeout, lambda: run.stopping):
-                log.warning("no subscriber on the sensor keys after %.0f s: streaming anyway", args.wait_timeout)
+        if not wait_for_consumers(run, waits, (pubs["imu"], pubs["stream"]), args.wait_timeout):
+            return 2
         if args.start_delay:
             run.wait(args.start_delay)
         if run.stopping:
             return 0
         run.set_state("running", f"streaming {ds.name}")
-        hold = None
-        if speed == 0 and waits:
-            progress, given_up = Progress(run.bus, args.rejoin_timeout), set[str]()  # still down after the timeout
-
-            def hold(cseq: int) -> None:
-                hold_while_down(run, waits, args.rejoin_timeout, stats, given_up)
-                if args.max_lead > 0:
-                    progress.wait_within(cseq, args.max_lead, run)
+        hold = make_hold(run, waits, args.rejoin_timeout, args.max_lead, stats) if speed == 0 and waits else None
         msgs = (stream_messages(ds, windows, events, args.batch) if receiver is None else
                 live_messages(ds, windows, events, receiver, speed, args.gnss_latency, lambda: run.stopping))
         last_cseq = stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0, pubs, stats, hold)
@@ -195,14 +182,7 @@ def _run(run, args, speed: float, acks: EndAcks, pubs: dict, aid_publisher, stat
                          for kind in ("imu", "gnss", *aids))
         log.info("stream done: %s, last cseq %d", done, last_cseq)
         run.set_state("done", f"streamed {ds.name}: {done}")
-        if waits and "ins" in waits:  # closing the session drops what is still queued: wait for every ins
-            ok = acks.wait(last_cseq, args.ack_timeout, lambda: run.stopping)
-            log.info("end of stream %s by %s", "acknowledged" if ok else "NOT acknowledged",
-                     sorted(acks.following) if ok else sorted(acks.pending(last_cseq)) or "any ins")
-        elif args.exit_on_end:
-            run.wait(args.linger)  # no acknowledgement to wait for: give the queues time to drain
-        if not args.exit_on_end:
-            run.wait()
+        wait_for_end(run, acks, "ins" in waits, last_cseq, args.ack_timeout, args.linger, args.exit_on_end)
         return 0
     except (DataError, OSError, ValueError) as e:  # bad input: one line, no traceback
         log.error("cannot stream %s: %s", args.source, e)

@@ -101,3 +101,47 @@ def wait_matching(publishers, timeout_s: float, stopping) -> bool:
     while not all(p.matching for p in publishers) and time.monotonic() < deadline and not stopping():
         time.sleep(0.01)
     return all(p.matching for p in publishers)
+
+
+def wait_for_consumers(run, waits: list, publishers, timeout_s: float) -> bool:
+    """Wait for the services ``waits`` to be alive (False, logged and the state set to error, when they are not
+    after timeout_s [s]), then for a subscriber on ``publishers`` (a warning when none after timeout_s)."""
+    if not waits:
+        return True
+    run.set_state("starting", f"waiting for {','.join(waits)}")
+    if not run.bus.wait_alive(waits, timeout_s):
+        run.log.error("gave up waiting for %s (alive: %s)", waits, sorted(run.bus.alive()))
+        run.set_state("error", f"{waits} not alive")
+        return False
+    if not wait_matching(publishers, timeout_s, lambda: run.stopping):
+        run.log.warning("no subscriber on the sensor keys after %.0f s: streaming anyway", timeout_s)
+    return True
+
+
+def make_hold(run, waits: list, rejoin_timeout_s: float, max_lead: int, stats: dict):
+    """The hold of an as-fast-as-drained stream before each message (cseq): pause while a waited-for service is
+    down (hold_while_down; given up after rejoin_timeout_s [s]) and, with max_lead > 0, keep within max_lead
+    messages of the slowest consumer's progress."""
+    progress, given_up = Progress(run.bus, rejoin_timeout_s), set[str]()  # still down after the timeout
+
+    def hold(cseq: int) -> None:
+        hold_while_down(run, waits, rejoin_timeout_s, stats, given_up)
+        if max_lead > 0:
+            progress.wait_within(cseq, max_lead, run)
+
+    return hold
+
+
+def wait_for_end(run, acks, ins_waited: bool, last_cseq: int, ack_timeout_s: float, linger_s: float,
+                 exit_on_end: bool) -> None:
+    """After the last message (last_cseq): wait for every ins's acknowledgement when an ins was waited for
+    (closing the session drops what is still queued; at most ack_timeout_s [s]), else with exit_on_end linger
+    linger_s [s] for the queues to drain; without exit_on_end stay up until stopped."""
+    if ins_waited:
+        ok = acks.wait(last_cseq, ack_timeout_s, lambda: run.stopping)
+        run.log.info("end of stream %s by %s", "acknowledged" if ok else "NOT acknowledged",
+                     sorted(acks.following) if ok else sorted(acks.pending(last_cseq)) or "any ins")
+    elif exit_on_end:
+        run.wait(linger_s)
+    if not exit_on_end:
+        run.wait()
