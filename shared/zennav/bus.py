@@ -8,7 +8,8 @@
   certificate and password (``ZENNAV_IDENTITY``, default the service name).
 - ``Bus`` is one session of one service: publishers and subscribers with the stream's QoS from
   ``zennav.messages``, a liveliness token ``zennav/@v1/<vehicle>/@alive/<service>``, liveliness watching,
-  queryables serving the latest value of a stream, queries for late joiners, and clean shutdown.
+  queryables serving the latest value of a stream or a service's own answers (``serve``), queries for late
+  joiners and ranges, and clean shutdown.
 
 Threading: every subscription receives into a zenoh channel (``fifo``: bounded and lossless, a full queue
 back-pressures the sender through reliable/blocking transport; ``ring``: keeps the newest) and one worker
@@ -18,8 +19,9 @@ gets a session, a link, of its own, so one full queue holds back only its own st
 would hold back every stream behind it, and flows that cross through the router deadlock (the ins's solutions
 wait behind sensor samples on the link to the attitude, whose attitudes wait behind sensor samples on the link
 to the ins) until zenoh closes the link (wait_before_close). Peers keep one session: their links are per pair.
-No Python code runs in zenoh's network threads except the latest-value queryables, which only reply with
-cached bytes. With ``serial=True`` (default) the callbacks of one Bus never run concurrently (one lock), so
+No Python code runs in zenoh's network threads except the queryables: the latest values reply with cached
+bytes, ``serve``'s answers with what they look up (the ingest's history: a slice of its last messages). With
+``serial=True`` (default) the callbacks of one Bus never run concurrently (one lock), so
 services need no locking of their own.
 """
 from __future__ import annotations
@@ -110,6 +112,7 @@ def open_config(mode: str | None = None, config_file=None, connect=None, listen=
         conf.insert_json5("connect/endpoints", f'["{DEFAULT_ENDPOINT}"]')
         conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
         conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", "60000000")
+        conf.insert_json5("transport/link/tx/lease", "60000")
     if mode:
         conf.insert_json5("mode", f'"{mode}"')
     connect = _split(connect if connect is not None else os.environ.get("ZENNAV_CONNECT"))
@@ -371,6 +374,7 @@ class Bus:
         self._cb_lock = threading.RLock() if serial else None
         self._subs: list[Subscription] = []
         self._pubs: dict[str, Publisher] = {}
+        self._queryables: list[Any] = []  # serve()
         self.rejected: Counter[str] = Counter()
         self.rejected_by_key: Counter[tuple[str, str]] = Counter()
         self.errors: Counter[str] = Counter()
@@ -461,10 +465,15 @@ class Bus:
         with self._rej_lock:
             return dict(self.rejected)
 
-    def get(self, selector: str, timeout: float = 2.0) -> list[tuple[str, bytes]]:
-        """Query queryables (latest values) matching selector; returns (key, payload) of each reply."""
+    def get(self, selector: str, timeout: float = 2.0, payload: bytes | None = None,
+            qos: M.QoS | None = None) -> list[tuple[str, bytes]]:
+        """Query queryables (latest values, a served range) matching selector, with payload; returns (key,
+        payload) of each reply. qos: the query's congestion control and priority, which its replies take (zenoh
+        1.x; default: zenoh's, congestion "drop")."""
+        kw = {} if qos is None else {"congestion_control": _CONGESTION[qos.congestion],
+                                     "priority": _PRIORITY[qos.priority], "express": qos.express}
         out = []
-        for reply in self.session.get(selector, timeout=timeout):
+        for reply in self.session.get(selector, timeout=timeout, payload=payload, **kw):
             ok = reply.ok
             if ok is not None:
                 out.append((str(ok.key_expr), ok.payload.to_bytes()))
@@ -481,6 +490,20 @@ class Bus:
             else:
                 out.append((key, msg))
         return out
+
+    def serve(self, key: str, answer: Callable[[bytes], bytes | None]) -> None:
+        """A queryable on key: answer(the query's payload) runs on a zenoh thread (keep it short); what it
+        returns, unless None, is the one reply (on key). A failing answer is counted in ``errors``."""
+        def on_query(query) -> None:
+            try:
+                out = answer(query.payload.to_bytes() if query.payload is not None else b"")
+                if out is not None:
+                    query.reply(key, out, encoding=_ENCODING)
+            except Exception:  # a malformed query, or the query gone: never raise into zenoh
+                self.errors["serve"] += 1
+                log.exception("answering a query on %s failed", key)
+
+        self._queryables.append(self.session.declare_queryable(key, on_query, complete=True))
 
     # ------------------------------------------------------------------ status / liveliness
     def announce(self) -> None:
@@ -586,6 +609,11 @@ class Bus:
                 t.join(2.0)
         for pub in self._pubs.values():
             pub.close()
+        for q in self._queryables:
+            try:
+                q.undeclare()
+            except Exception:
+                pass
         try:
             self.session.close()
         except Exception:

@@ -26,6 +26,11 @@ a hole the stream stopped behind.
 Resume (crash recovery): ``resume(start, next_cseq, t_ref_ns)`` takes a checkpoint's position in a stream; it
 applies once a message of that source arrives (``on_resume``), and is dropped when another stream starts.
 
+Backfill: samples that wait behind a hole that has not moved for 2 s (a restarted consumer behind its checkpoint,
+a message lost in transit) are fetched from the ingest's history (zennav.nodes.ingest.History) outside the
+consumer's live queue (``Backfill``, run by ``start_ticker``); a resume not yet applied fetches from its
+checkpoint at once.
+
 Late join (one policy for every consumer): a consumer that starts after a stream began (launched late,
 restarted by ``zennav launch``) joins it at the first IMU sample it receives. It needs the stream's
 description (the ins builds its engine from it), so it asks for the stream's ``stream_start`` with
@@ -139,6 +144,7 @@ class StreamFollower:
         self._resume: tuple[dict, int, int] | None = None
         self._busy = False  # a message is being handled (its consumer may wait, releasing the lock: lockstep)
         self._retry_in = 0
+        self.backfills: Counter[str] = Counter()  # Backfill: backfilled (samples), backfill_empty, backfill_failed
 
     def on_message(self, key: str, msg: dict) -> None:
         """A validated message of a sensor key (stream_start, imu, imu_batch, gnss, stream_end)."""
@@ -184,6 +190,49 @@ class StreamFollower:
         right before the end), see zennav.messages.SequenceMerger.expire."""
         if self.merger is not None and not self.done and not self._busy:  # busy: a sample waits (lockstep)
             self.merger.expire(self._release)
+
+    def hole(self, after_s: float) -> tuple[int, int] | None:
+        """The cseqs (first, last) the live stream's samples have waited for at least after_s [s], the merge's
+        wait for them restarted (a Backfill fetches them); None when there are none, or a sample is being handled.
+        A resume not yet applied waits from its checkpoint on (last: unknown, 2**62): the ingest's history may
+        have what comes next before the stream does (a drained stream waits for this consumer's progress)."""
+        if self._resume is not None:
+            return self._resume[1], 1 << 62
+        m = self.merger
+        if m is None or self.done or self._busy:
+            return None
+        h = m.hole()
+        if h is None or h[2] < after_s:
+            return None
+        m.touch()
+        return h[0], h[1]
+
+    def backfill(self, first: int, last: int, got: list[tuple[str, dict]] | None) -> None:
+        """The messages fetched for the cseqs first..last (Backfill; None: not answered, counted backfill_failed):
+        those of the live stream go into the merge; the cseqs it still waits for before the first one fetched
+        are no longer to be had (counted backfill_empty) and skipped as a gap."""
+        if self._resume is not None:  # the checkpoint's stream, if the history has it: resume now
+            got = [(k, msg) for k, msg in got or () if msg["src"] == self._resume[0]["src"]]
+            if not got:
+                return
+            self._activate()
+        m = self.merger
+        if got is None:
+            self.backfills["backfill_failed"] += 1
+            self.log.warning("backfill of cseq %d..%d: no answer from the ingest's history", first, last)
+            return
+        if m is None or self.done or self._busy:  # the stream moved on meanwhile
+            return
+        got = [(k, msg) for k, msg in got if msg["src"] == self.src and msg["schema"] != "stream_start"]
+        self.backfills["backfilled"] += sum(len(M.samples(msg)) for _, msg in got)
+        gone = min((msg["cseq"] for _, msg in got), default=last + 1) - m.next
+        if gone > 0:
+            self.backfills["backfill_empty"] += gone
+            self.log.warning("backfill: cseq %d..%d no longer in the ingest's history: skipped", m.next,
+                             m.next + gone - 1)
+            m.skip_to(m.next + gone, self._release)
+        for key, msg in got:
+            self.on_message(key, msg)
 
     def resume(self, start: dict, next_cseq: int, t_ref_ns: int) -> None:
         """Resume the stream of ``start`` at next_cseq (a checkpoint: the samples before it were handled, the last
@@ -289,25 +338,63 @@ class StreamFollower:
                              self.src)
 
     def status(self) -> dict:
-        """Stream progress for nav_status ``stream``: src, dataset, done, last_cseq, next_cseq, held and the
-        merge counts (reordered, duplicate, gap)."""
+        """Stream progress for nav_status ``stream``: src, dataset, done, last_cseq, next_cseq, held, the
+        merge counts (reordered, duplicate, gap) and the backfill's."""
         m = self.merger
         return {"src": self.src or "", "dataset": self.dataset, "done": self.done, "last_cseq": self.last_cseq,
                 "next_cseq": m.next if m else -1, "held": m.held if m else 0,
-                **({k: int(v) for k, v in m.counts.items()} if m else {})}
+                **({k: int(v) for k, v in m.counts.items()} if m else {}), **self.backfills}
 
 
-def start_ticker(follower: StreamFollower, lock, stopping: Callable[[], bool], period_s: float = 0.25):
+class Backfill:
+    """Fetches the samples a stream waits for from the ingest's history (zennav.nodes.ingest.History), outside the
+    consumer's live queue: once samples have waited after_s [s] behind the same hole (a restarted consumer behind
+    its checkpoint, a message lost in transit), its cseqs are fetched chunk by chunk (fetch(first, last) ->
+    validated (key, message) pairs, None when nobody answered) and pushed into the merge
+    (StreamFollower.backfill); each chunk holds the merge's timeout for the hole from its start
+    (SequenceMerger.touch). Counted in the stream status: backfilled, backfill_empty, backfill_failed.
+    Not for a consumer whose sample handling waits releasing the lock (the ins's --lockstep): fetched samples
+    pushed while one is being handled would enter the merge in the middle of its release."""
+
+    def __init__(self, follower: StreamFollower, fetch: Callable[[int, int], list | None], after_s: float = 2.0,
+                 chunk: int = 1000):
+        self.follower, self.fetch, self.after_s, self.chunk = follower, fetch, after_s, chunk
+        self._idle_until = 0.0  # [monotonic s] after a round that got nothing, the next waits after_s
+
+    def run(self, lock, stopping: Callable[[], bool]) -> None:
+        """One round (the ticker's thread): fill the hole the stream has waited behind for after_s, if any."""
+        if time.monotonic() < self._idle_until:
+            return
+        with lock:
+            hole = self.follower.hole(self.after_s)
+        if hole is not None:
+            self.follower.log.info("backfilling from cseq %d (to %s) from the ingest's history", hole[0],
+                                   hole[1] if hole[1] < 1 << 62 else "the stream")
+        while hole is not None and not stopping():
+            first, last = hole[0], min(hole[1], hole[0] + self.chunk - 1)
+            got = self.fetch(first, last)
+            with lock:
+                self.follower.backfill(first, last, got)
+                hole = self.follower.hole(0.0) if got is not None else None
+            if got is None or (hole is not None and hole[0] <= first):  # no answer or no progress: wait after_s
+                self._idle_until, hole = time.monotonic() + self.after_s, None
+
+
+def start_ticker(follower: StreamFollower, lock, stopping: Callable[[], bool], period_s: float = 0.25,
+                 backfill: Backfill | None = None):
     """A daemon thread calling follower.tick() every period_s under lock (the bus's callback lock; None: none)
-    until stopping()."""
+    until stopping(), then a round of backfill (when given)."""
     import threading
     from contextlib import nullcontext
 
     def run() -> None:
+        guard = lock if lock is not None else nullcontext()
         while not stopping():
             time.sleep(period_s)
-            with lock if lock is not None else nullcontext():
+            with guard:
                 follower.tick()
+            if backfill is not None:
+                backfill.run(guard, stopping)
 
     t = threading.Thread(target=run, name="zennav-stream-tick", daemon=True)
     t.start()

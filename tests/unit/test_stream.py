@@ -235,3 +235,83 @@ def test_ins_resumed_from_a_checkpoint_continues_as_the_replay(tmp_path):
     keep = ref.t_ns >= t[0]
     assert np.array_equal(t, ref.t_ns[keep]) and t[0] < msgs[cut][1]["t_ns"]
     assert np.array_equal(np.array([sols[x]["llh"] for x in t]), ref.llh[keep])
+
+
+class _Loopback:
+    """The bus as History and fetch_history use it (serve, get, keys, count_rejected), a query answered in this
+    process: the transport is all it stands in for."""
+
+    def __init__(self):
+        self.keys, self.answers, self.rejected = K, {}, []
+
+    def serve(self, key, answer):
+        self.answers[key] = answer
+
+    def get(self, key, timeout, payload=None, qos=None):
+        assert qos == M.HISTORY_QOS  # blocking: a burst of replies must not be dropped
+        out = self.answers[key](payload) if key in self.answers else None
+        return [] if out is None else [(key, out)]
+
+    def count_rejected(self, key, reason):
+        self.rejected.append(reason)
+
+
+def _restarted_ins(tmp_path, history_size: int, dead: int):
+    """An ins checkpointing every 5 s of data, killed after 20 s of a 40 s stream; the ingest kept its last
+    history_size messages; the restarted ins gets the live stream again only ``dead`` messages after the kill and
+    backfills the rest from the ingest's history (zennav.stream.Backfill). Returns (restarted ins, its solutions
+    by time, the messages, the dataset)."""
+    import threading
+
+    from zennav.checkpoint import Checkpointer
+    from zennav.nodes.ingest import History, fetch_history
+    from zennav.nodes.ins import InsNode
+    from zennav.stream import Backfill
+
+    ds = load_dataset("sim:car", duration_s=40.0)
+    msgs = _msgs(ds)
+    bus = _Loopback()
+    history = History(bus, K.sensor_history(), history_size)
+    for key, m in msgs:
+        history.add(key, m, M.encode(m))
+    path = tmp_path / "ins.ckpt"
+    first = InsNode(lambda kind, m: None, log, checkpoint=Checkpointer(path, 5.0))
+    cut = next(i for i, (_k, m) in enumerate(msgs) if m["t_ns"] > ds.initial.t_ns + 20 * 10**9)
+    for key, m in msgs[:cut]:
+        first.on_sensor(key, m)
+    sols: dict = {}
+    second = InsNode(lambda kind, m: sols.__setitem__(m["t_ns"], m) if kind == "solution" else None, log,
+                     checkpoint=Checkpointer(path, 5.0))
+    backfill = Backfill(second.follower, lambda a, b: fetch_history(bus, K.sensor_history(), a, b), after_s=0.0)
+    lock, never = threading.RLock(), lambda: False
+    backfill.run(lock, never)  # restarted, before the stream goes on: the history's next samples, if it has them
+    for key, m in msgs[cut + dead:cut + dead + 100]:  # the live stream again: held behind the dead window
+        second.on_sensor(key, m)
+    backfill.run(lock, never)
+    for key, m in msgs[cut + dead + 100:]:
+        second.on_sensor(key, m)
+    assert not bus.rejected
+    return second, sols, msgs, ds
+
+
+def test_restarted_ins_backfills_the_dead_window_from_the_ingest_history(tmp_path):
+    """The restarted ins resumes from its checkpoint with the history's samples, fills the 3000 messages it never
+    got live from it, outside its live queue, and navigates every sample: the replay's solution, bit for bit."""
+    second, sols, msgs, ds = _restarted_ins(tmp_path, 20000, 3000)
+    st = second.follower.status()
+    assert second.recovery["resumed"] == 1 and st["done"] and not st.get("gap") and not st.get("backfill_empty")
+    assert st["backfilled"] >= 3000 and second.imu_count == msgs[-1][1]["counts"]["imu"]
+    ref = run_replay(ds)
+    t = sorted(sols)
+    keep = ref.t_ns >= t[0]
+    assert np.array_equal(t, ref.t_ns[keep])
+    assert np.array_equal(np.array([sols[x]["llh"] for x in t]), ref.llh[keep])
+
+
+def test_what_the_ingest_no_longer_has_is_a_counted_gap(tmp_path):
+    """The ingest kept only its last 2000 messages: the restarted ins counts the cseqs it can no longer have
+    (backfill_empty) and skips them as a gap, backfills the rest and reaches the stream's end."""
+    second, _, _, _ = _restarted_ins(tmp_path, 2000, 3000)
+    st = second.follower.status()
+    assert st["done"] and st["backfill_empty"] > 0 and st["gap"] == st["backfill_empty"], st
+    assert st["backfilled"] > 0 and second.recovery["realigned"] == 1

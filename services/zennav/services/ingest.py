@@ -11,8 +11,8 @@ Wiring table
                <base>/sensor/depth/<id>  depth  (a dataset with a depth sensor)
     waits for  liveliness of --wait-for services (default: ins) and a subscriber on the IMU key (zenoh's
                                          matching status); with --speed 0 the stream pauses while one of them is
-                                         down (--rejoin-timeout): restarted, it recovers what it missed from the
-                                         publishers' cache (--cache, zenoh's advanced publisher)
+                                         down (--rejoin-timeout); restarted, it recovers what it missed from --cache
+    serves     <base>/sensor/history     its last --cache messages by cseq range (zennav.nodes.ingest.History)
     subscribes <base>/nav/status, <base>/nav/*/status   to see every ins that follows the stream acknowledge
                                          its end before the session closes
 
@@ -38,7 +38,7 @@ from dataclasses import replace
 
 from zennav.datasets.errors import DataError
 from zennav.messages import AID_STREAMS
-from zennav.nodes.ingest import make_hold, outage_arg, stream, wait_for_consumers, wait_for_end
+from zennav.nodes.ingest import History, make_hold, outage_arg, stream, wait_for_consumers, wait_for_end
 from zennav.replay import parse_outage, parse_outage_every, sensor_events
 from zennav.service import EndAcks, ServiceRunner, add_bus_args
 from zennav.stream import stream_messages
@@ -80,8 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="[s] how long an IMU sample waits for the receiver's fixes up to its time")
     p.add_argument("--gnss-silence", type=float, default=2.0, help="[s] receiver silence that is counted and logged")
     p.add_argument("--cache", type=int, default=20000,
-                   help="sensor messages kept per key for consumers that recover what they missed (a restarted "
-                        "ins fetches them; zenoh's advanced publisher); 0: plain publishers")
+                   help="sensor messages kept for consumers that recover what they missed: served by cseq range "
+                        "(sensor/history), and per key by zenoh's advanced publisher (a --lockstep ins); 0: none")
     p.add_argument("--max-lead", type=int, default=10000,
                    help="with --speed 0: stay at most this many messages ahead of the slowest ins following the "
                         "stream (its nav status), so that what a crashed ins had queued is still in the --cache; "
@@ -172,7 +172,8 @@ def _run(run, args, speed: float, acks: EndAcks, pubs: dict, aid_publisher, stat
         hold = make_hold(run, waits, args.rejoin_timeout, args.max_lead, stats) if speed == 0 and waits else None
         msgs = (stream_messages(ds, windows, events, args.batch) if receiver is None else
                 live_messages(ds, windows, events, receiver, speed, args.gnss_latency, lambda: run.stopping))
-        last_cseq = stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0, pubs, stats, hold)
+        last_cseq = stream(run, msgs, int(ds.initial.t_ns), speed if receiver is None else 0.0, pubs, stats, hold,
+                           History(run.bus, run.keys.sensor_history(), args.cache) if args.cache > 0 else None)
         if receiver is not None:
             receiver.stop()
             log.info("receiver %s: %s", args.gnss_receiver, receiver.counts)

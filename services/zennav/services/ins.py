@@ -14,9 +14,12 @@ Wiring table
                                          GNSS or alignment state changes, at the stream end (its acknowledgement)
                <base>/learn/samples      --learning: the engine's training samples (GNSS good, converged)
                <base>/learn/query        --learning: the engine's prediction requests (GNSS lost)
-    The sensor subscription recovers (zenoh's advanced subscriber): a restarted ins fetches the ingest's cache,
-    and with --checkpoint resumes the engine where it was (zennav.checkpoint); the solution and query publishers
-    keep a cache for subscribers that recover what they missed (a router restart, a restarted predictor).
+    queries    <base>/sensor/history     what the stream waits for (missed while down, lost in transit), from the
+                                         ingest's last messages (zennav.stream.Backfill; --lockstep: zenoh's
+                                         advanced subscriber fetches the ingest's cache instead)
+    With --checkpoint a restarted ins resumes the engine where it was (zennav.checkpoint); the solution and query
+    publishers keep a cache for subscribers that recover what they missed (a router restart, a restarted
+    predictor).
     <nav> is <base>/nav, or <base>/nav/<prefix> with --nav-prefix (a second ins beside the first on one stream).
 
 The core is zennav.nodes.ins.InsNode. Filter settings come from the parameter file (--params, default
@@ -33,11 +36,12 @@ import sys
 from zennav import messages as M
 from zennav.checkpoint import Checkpointer
 from zennav.learn.link import LearningLink
+from zennav.nodes.ingest import fetch_history
 from zennav.nodes.ins import InsNode
 from zennav.params import ParamError
 from zennav.replay_cli import filter_settings
 from zennav.service import ServiceRunner, add_bus_args
-from zennav.stream import start_ticker
+from zennav.stream import Backfill, start_ticker
 
 LOCKSTEP_QUEUE = 1 << 24  # sensor messages buffered with --lockstep (a replay's whole stream)
 
@@ -54,12 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dvl-id", default="0")
     p.add_argument("--depth-id", default="0")
     p.add_argument("--solution-every", type=int, default=1, help="publish every N-th solution")
-    p.add_argument("--queue", type=int, default=8192,
+    p.add_argument("--queue", type=int, default=1024,
                    help="sensor queue capacity in messages (back-pressure beyond; every queued message holds zenoh's "
-                        "receive buffer: 8192 cost about 100 MB of resident memory, benchmarks/memory.py; but a "
-                        "restarted ins's history fetch from the ingest's cache needs the room: with 1024 the resume "
-                        "from a checkpoint 10,000 samples back never completes, tests/integration/"
-                        "test_fault_tolerance.py)")
+                        "receive buffer: 8192 cost about 100 MB more resident memory than 1024, benchmarks/memory.py; "
+                        "a restarted ins's backfill does not go through it)")
     p.add_argument("--learning", action="store_true",
                    help="learning loop: publish learn/samples and learn/query, fuse learn/correction (off: the "
                         "core runs exactly as the in-process replay)")
@@ -133,12 +135,18 @@ def main(argv=None) -> int:
                    takeover_after_s=args.takeover_after,
                    aid_keys={"dvl": k.dvl(args.dvl_id), "depth": k.depth(args.depth_id)})
     run.counters = lambda: {**node.counters(), "missed": sum(bus.missed.values())}
-    # lockstep: the ins waits for answers (a fit can take minutes) while the ingest streams on; its samples queue
-    # here without bound instead of holding the ingest's blocking push past zenoh's wait_before_close.
-    # Recovering: a restarted ins fetches the ingest's cache (what it missed while down, the stream's start)
-    bus.recovering_subscribe(k.sensors(), lambda key, msg, recv_ns: node.on_sensor(key, msg), channel="fifo",
-                             capacity=LOCKSTEP_QUEUE if args.lockstep else args.queue, name="sensors")
-    start_ticker(node.follower, bus.callback_lock, lambda: run.stopping)
+    on_sensor = lambda key, msg, recv_ns: node.on_sensor(key, msg)  # noqa: E731
+    backfill = None
+    if args.lockstep:
+        # the ins waits for answers (a fit can take minutes) while the ingest streams on; its samples queue here
+        # without bound instead of holding the ingest's blocking push past zenoh's wait_before_close. A restarted
+        # ins recovers what it missed from the publishers' caches (zenoh's history: a drained replay), not by a
+        # backfill (zennav.stream.Backfill: not while a sample waits releasing the lock)
+        bus.recovering_subscribe(k.sensors(), on_sensor, channel="fifo", capacity=LOCKSTEP_QUEUE, name="sensors")
+    else:  # what it lacks (missed while down, lost in transit) is fetched from the ingest's history
+        bus.subscribe(k.sensors(), on_sensor, channel="fifo", capacity=args.queue, name="sensors")
+        backfill = Backfill(node.follower, lambda first, last: fetch_history(bus, k.sensor_history(), first, last))
+    start_ticker(node.follower, bus.callback_lock, lambda: run.stopping, backfill=backfill)
     if args.attitude_alignment:
         tilt_std = math.radians(args.attitude_tilt_std)
         bus.subscribe(k.attitude(), lambda key, msg, recv_ns: node.on_attitude(msg, tilt_std), channel="ring",

@@ -8,6 +8,8 @@ Key grammar, ``<base> = zennav/@v1/<vehicle>``::
                                                   velocity in the DVL frame [m/s] + validity
     <base>/sensor/depth/<id>      depth           pressure depth [m, positive down]
     <base>/sensor/stream          stream_start / stream_end   start (sensor description, initial state) and end
+    <base>/sensor/history         (queryable)     the ingest's last sensor messages by cseq range, for a consumer
+                                                  that lacks some (zennav.nodes.ingest.History; HISTORY_QOS)
     <base>/attitude               attitude        attitude filter output at IMU rate
     <base>/nav/solution           nav_solution    navigation solution at IMU rate
     <base>/nav/aid/<source>       aid_report      one aid source's status record (gnss_pos, gnss_vel, ...)
@@ -66,6 +68,9 @@ class Keys:
 
     def stream(self) -> str:
         return f"{self.base}/sensor/stream"
+
+    def sensor_history(self) -> str:
+        return f"{self.base}/sensor/history"
 
     def sensors(self) -> str:
         return f"{self.base}/sensor/**"
@@ -145,6 +150,10 @@ class Stream:
     time: str  # "strict" (t_ns increasing), "nondecreasing", "cseq" (ordered by the consumer's cseq merge), "none"
     qos: QoS
 
+
+# A query of sensor/history and its replies (they take the query's QoS in zenoh 1.x): blocking, so that a burst of
+# a thousand replies waits for the link instead of being dropped (the default, congestion "drop", lost them all).
+HISTORY_QOS = QoS("reliable", "block", "DATA_HIGH")
 
 _NAV = r"nav/(?:[A-Za-z0-9_\-.]+/)?"  # an optional nav prefix chunk (Keys.nav_prefix)
 

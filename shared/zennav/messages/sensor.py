@@ -306,6 +306,27 @@ class SequenceMerger:
         self._hole_since = self._clock()
         self._drain(emit)
 
+    def hole(self) -> tuple[int, int, float] | None:
+        """The missing cseqs that held items wait behind (first, last) and how long [s] it has been waited for;
+        None when nothing waits behind a missing cseq."""
+        if not self._heap or self._heap[0] == self.next:  # nothing held, or an open slot (its candidates refused)
+            return None
+        return self.next, self._heap[0] - 1, self._clock() - self._hole_since
+
+    def touch(self) -> None:
+        """The hole is being filled (a backfill): wait timeout_s more for it before it is skipped."""
+        self._hole_since = self._clock()
+
+    def skip_to(self, cseq: int, emit: Callable[[Any], None]) -> None:
+        """The cseqs before cseq (at most up to the first held one) are known lost: skip them as a counted gap
+        and release what follows."""
+        cseq = min(cseq, self._heap[0]) if self._heap else cseq
+        if cseq > self.next:
+            self.counts["gap"] += cseq - self.next
+            self.next = cseq
+            self._hole_since = self._clock()
+            self._drain(emit)
+
     def expire(self, emit: Callable[[Any], None]) -> None:
         """Skip the gaps waited for longer than timeout_s (call periodically: the stream may have stopped
         behind a lost message)."""

@@ -1,12 +1,88 @@
 """The ingest service's streaming core, transport-agnostic over the bus object it is given: publish a run's
 sensor messages paced in data time or as fast as the consumers drain (``stream``), pause while an awaited
 service is down (``hold_while_down``), and stay within a lead of the slowest ins following the stream
-(``Progress``), wait for the subscribers (``wait_matching``); see zennav.services.ingest for the wiring."""
+(``Progress``), wait for the subscribers (``wait_matching``), keep its last messages for consumers that lack some
+(``History``, fetched with ``fetch_history``); see zennav.services.ingest for the wiring."""
 from __future__ import annotations
 
 import argparse
+import bisect
 import threading
 import time
+from collections import deque
+from itertools import islice
+
+import msgpack
+
+from .. import messages as M
+
+
+class History:
+    """The ingest's last ``size`` sensor messages, served by cseq range on <base>/sensor/history (Bus.serve): a
+    consumer that lacks some (a restarted ins behind its checkpoint, a message lost in transit) fetches them
+    outside its live queue (zennav.stream.Backfill, ``fetch_history``). A query's payload is msgpack
+    [first, last] (cseqs, at most ``max_range`` apart); its one reply is msgpack [[key, payload], ...]: the
+    messages with a cseq in that range (an imu_batch when any of its cseqs is), in order, as published; what the
+    ingest no longer has is left out. Not thread-bound: the stream's thread adds, zenoh's answers."""
+
+    def __init__(self, bus, key: str, size: int, max_range: int = 10_000):
+        self.max_range = max_range
+        self._msgs: deque[tuple[int, int, str, bytes]] = deque(maxlen=size)  # (cseq, last cseq, key, payload)
+        self._lock = threading.Lock()
+        bus.serve(key, self.answer)
+
+    def add(self, key: str, msg: dict, payload: bytes) -> None:
+        """A message just published on key (its payload as sent)."""
+        cseq = msg["cseq"]
+        with self._lock:
+            self._msgs.append((cseq, cseq + len(msg["t_ns_list"]) - 1 if msg["schema"] == "imu_batch" else cseq,
+                               key, payload))
+
+    def answer(self, query: bytes) -> bytes | None:
+        """The reply to a query's payload (None: a malformed query, not answered)."""
+        try:
+            first, last = msgpack.unpackb(query)
+        except Exception:  # msgpack raises many types; a wrong shape raises ValueError/TypeError
+            return None
+        if type(first) is not int or type(last) is not int or not 0 <= last - first <= self.max_range:
+            return None
+        with self._lock:
+            msgs = list(self._msgs)  # a copy: the deque moves on while it is searched (at most size entries)
+        i = bisect.bisect_left(msgs, first, key=lambda m: m[1])  # the first message that reaches first
+        out = []
+        for cseq, _, key, payload in islice(msgs, i, None):
+            if cseq > last:
+                break
+            out.append([key, payload])
+        return msgpack.packb(out)
+
+
+def fetch_history(bus, key: str, first: int, last: int, timeout_s: float = 5.0) -> list[tuple[str, dict]] | None:
+    """The messages of cseqs first..last from the ingest's History on key, as validated (key, message) pairs;
+    None when no ingest answered, or its reply is malformed (counted rejected on the bus). Queried with
+    zennav.messages.HISTORY_QOS (blocking: the replies take it). A reply entry that is not a valid message of a
+    sensor key of this vehicle is counted rejected on the bus and left out."""
+    replies = bus.get(key, timeout_s, payload=msgpack.packb([first, last]), qos=M.HISTORY_QOS)
+    if not replies:
+        return None
+    validator, base, out = M.Validator(), bus.keys.base + "/sensor/", []
+    for _, reply in replies:
+        try:
+            pairs = msgpack.unpackb(reply)
+        except Exception as e:  # msgpack raises many types
+            bus.count_rejected(key, f"bad_history: {type(e).__name__}")
+            return None
+        for entry in pairs if isinstance(pairs, list) else [None]:
+            if not (isinstance(entry, list) and len(entry) == 2 and isinstance(entry[0], str)
+                    and isinstance(entry[1], bytes) and entry[0].startswith(base)):
+                bus.count_rejected(key, "bad_history: not a [sensor key, payload] pair")
+                continue
+            msg, reason = validator.check(*entry)
+            if msg is None:
+                bus.count_rejected(entry[0], reason)
+            else:
+                out.append((entry[0], msg))
+    return out
 
 
 class Progress:
@@ -61,10 +137,11 @@ def hold_while_down(run, waits: list, timeout: float, stats: dict, given_up: set
                                     f"streaming on without {sorted(given_up)}", time.monotonic() - t0)
 
 
-def stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=None) -> int | None:
+def stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=None,
+           history: History | None = None) -> int | None:
     """Publish the stream's messages (zennav.stream.stream_messages), paced at ``speed`` times real time (0: as
-    fast as the consumers drain; hold(cseq): called before each message, may pause); returns the last cseq, or None
-    when stopped."""
+    fast as the consumers drain; hold(cseq): called before each message, may pause), each kept in history; returns
+    the last cseq, or None when stopped."""
     wall0 = time.perf_counter()
     msg: dict = {}
     for kind, msg in msgs:
@@ -76,7 +153,9 @@ def stream(run, msgs, t0_ns: int, speed: float, pubs: dict, stats: dict, hold=No
             delay = wall0 + (msg["t_ns"] - t0_ns) / 1e9 / speed - time.perf_counter()
             if delay > 0:
                 time.sleep(delay)
-        pubs[kind].put(msg)
+        payload = pubs[kind].put(msg)
+        if history is not None:
+            history.add(pubs[kind].key, msg, payload)
         if kind != "stream":
             stats[kind] += len(msg["t_ns_list"]) if msg["schema"] == "imu_batch" else 1
         stats["cseq"] = msg["cseq"]

@@ -8,10 +8,11 @@ in-process replay's bit for bit. A late joiner starts in coarse alignment at its
 (heading unknown; position, velocity and attitude from the next GNSS fixes, as an ins switched on in motion).
 Crash recovery: with a Checkpointer the whole state (the engine's get_state, the stream position, counts) is
 written atomically every few seconds of data (zennav.checkpoint); a new InsNode with the same file resumes
-from it when the stream's messages (re-sent from the ingest's cache) arrive. IMU samples lost in a gap up to
-bridge_max_s are bridged (the next sample's rates held over the gap); after a longer gap the ins re-aligns as
-a late joiner. Learning (a LearningLink given; off by default): the engine emits training samples and queries
-(NavConfig.learning), the link publishes them and fuses the answers (zennav.learn.link).
+from it with the stream's messages since (fetched from the ingest's history, zennav.stream.Backfill). IMU
+samples lost in a gap up to bridge_max_s are bridged (the next sample's rates held over the gap); after a
+longer gap the ins re-aligns as a late joiner. Learning (a LearningLink given; off by default): the engine
+emits training samples and queries (NavConfig.learning), the link publishes them and fuses the answers
+(zennav.learn.link).
 """
 from __future__ import annotations
 
