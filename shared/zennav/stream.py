@@ -360,6 +360,7 @@ class Backfill:
                  chunk: int = 1000):
         self.follower, self.fetch, self.after_s, self.chunk = follower, fetch, after_s, chunk
         self._idle_until = 0.0  # [monotonic s] after a round that got nothing, the next waits after_s
+        self._logged = -1  # the first cseq of the last hole logged (a resume nobody answers: logged once)
 
     def run(self, lock, stopping: Callable[[], bool]) -> None:
         """One round (the ticker's thread): fill the hole the stream has waited behind for after_s, if any."""
@@ -367,7 +368,8 @@ class Backfill:
             return
         with lock:
             hole = self.follower.hole(self.after_s)
-        if hole is not None:
+        if hole is not None and hole[0] != self._logged:
+            self._logged = hole[0]
             self.follower.log.info("backfilling from cseq %d (to %s) from the ingest's history", hole[0],
                                    hole[1] if hole[1] < 1 << 62 else "the stream")
         while hole is not None and not stopping():

@@ -115,6 +115,13 @@ def test_access_control_table(creds):
         assert not _allowed(acl, ident, "liveliness_token", "ingress", f"{base}@alive/router")
         assert _allowed(acl, ident, "liveliness_token", "egress", f"{base}@alive/router")
     assert not _allowed(acl, "nobody", "declare_subscriber", "ingress", base + "sensor/imu/0")
+    # the ingest's history (zennav.nodes.ingest.History): the ins and the attitude query it, only the ingest serves
+    history, readers_of_history = base + "sensor/history", {"ins", "attitude", "monitor", "record", "launch"}
+    assert {i for i in idents if _allowed(acl, i, "query", "ingress", history)} == readers_of_history
+    assert {i for i in idents if _allowed(acl, i, "query", "egress", history)} == {"ingest"}
+    assert {i for i in idents if _allowed(acl, i, "reply", "ingress", history)} == {"ingest"}
+    assert {i for i in idents if _allowed(acl, i, "declare_queryable", "ingress", history)} == {"ingest"}
+    assert {i for i in idents if _allowed(acl, i, "reply", "egress", history)} == readers_of_history
 
 
 def test_launch_secure_variant(creds):
