@@ -6,13 +6,14 @@ Usage (from the repository root):
 
 Each case runs `zennav demo`'s process set (deploy/demo.yaml: router, learning ins in lockstep, plain ins,
 attitude, trainer, predictor, monitor, recorder, ingest as fast as it drains; zennav.demo.run_set, the demo's own
-code path) over the simulated car drive with its GNSS outage. ``clean`` kills nothing; ``ins``, ``predictor``
-and ``router`` send SIGKILL to that service once the learned ins has published a solution --kill-at seconds
-into the drive; the launcher restarts it (restart: on-failure) and the set recovers (zennav.checkpoint, the
-ingest's cache, recovering subscribers). Per case and ins (learned, plain): samples navigated (distinct
-solution times, of the stream's IMU samples), data seconds without a solution, the final horizontal error and
-the largest horizontal error in the outage (zennav.metrics against the simulator's truth), each beside the
-clean run's; and the wall seconds from the kill until the service was back (liveliness).
+code path) over the simulated car drive with its GNSS outage. ``clean`` kills nothing; ``ins``, ``ins-plain``,
+``predictor`` and ``router`` send SIGKILL to that service once the learned ins has published a solution --kill-at
+seconds into the drive; the launcher restarts it (restart: on-failure) and the set recovers (zennav.checkpoint;
+the learned ins, in lockstep, from the ingest's cache through zenoh's history; the plain ins from the ingest's
+history by its backfill, zennav.stream.Backfill; recovering subscribers). Per case and ins (learned, plain):
+samples navigated (distinct solution times, of the stream's IMU samples), data seconds without a solution, the
+final horizontal error and the largest horizontal error in the outage (zennav.metrics against the simulator's
+truth), each beside the clean run's; and the wall seconds from the kill until the service was back (liveliness).
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ from zennav.nav.types import NS
 from zennav.params import load_filter_params, nav_config
 from zennav.replay import ReplayResult, parse_outage
 
-CASES = ("clean", "ins", "predictor", "router")
+CASES = ("clean", "ins", "ins-plain", "predictor", "router")
 
 
 def killer(case: str, kill_at_s: float, log: dict):
