@@ -210,7 +210,8 @@ class StreamFollower:
     def backfill(self, first: int, last: int, got: list[tuple[str, dict]] | None) -> None:
         """The messages fetched for the cseqs first..last (Backfill; None: not answered, counted backfill_failed):
         those of the live stream go into the merge; the cseqs it still waits for before the first one fetched
-        are no longer to be had (counted backfill_empty) and skipped as a gap."""
+        are no longer to be had (counted backfill_empty) and skipped as a gap. A resume not yet applied is applied
+        by the first fetched message of its stream (none fetched, or no answer: it waits on, nothing counted)."""
         if self._resume is not None:  # the checkpoint's stream, if the history has it: resume now
             got = [(k, msg) for k, msg in got or () if msg["src"] == self._resume[0]["src"]]
             if not got:
