@@ -55,6 +55,7 @@ from .params import sensor_map
 
 DROPS = ("foreign_source", "no_stream", "duplicate_start", "late_join", "takeover_refused")
 RESYNC_AFTER = 8  # consecutive IMU samples refused as running backwards that re-anchor the time chain
+RESUME_END = 1 << 62  # StreamFollower.hole's last cseq for a resume not yet applied (where the stream is: unknown)
 
 
 def stream_messages(ds, windows: list, events: list, batch: int = 1) -> Iterator[tuple[str, dict]]:
@@ -192,20 +193,22 @@ class StreamFollower:
             self.merger.expire(self._release)
 
     def hole(self, after_s: float) -> tuple[int, int] | None:
-        """The cseqs (first, last) the live stream's samples have waited for at least after_s [s], the merge's
-        wait for them restarted (a Backfill fetches them); None when there are none, or a sample is being handled.
-        A resume not yet applied waits from its checkpoint on (last: unknown, 2**62): the ingest's history may
-        have what comes next before the stream does (a drained stream waits for this consumer's progress)."""
+        """The cseqs (first, last) the live stream's samples have waited for at least after_s [s]; None when there
+        are none, or a sample is being handled. A resume not yet applied waits from its checkpoint on (last:
+        unknown, RESUME_END): the ingest's history may have what comes next before the stream does (a drained
+        stream waits for this consumer's progress)."""
         if self._resume is not None:
-            return self._resume[1], 1 << 62
+            return self._resume[1], RESUME_END
         m = self.merger
         if m is None or self.done or self._busy:
             return None
         h = m.hole()
-        if h is None or h[2] < after_s:
-            return None
-        m.touch()
-        return h[0], h[1]
+        return None if h is None or h[2] < after_s else (h[0], h[1])
+
+    def hold(self) -> None:
+        """The hole is being fetched (Backfill): the merge waits for it timeout_s more."""
+        if self.merger is not None:
+            self.merger.touch()
 
     def backfill(self, first: int, last: int, got: list[tuple[str, dict]] | None) -> None:
         """The messages fetched for the cseqs first..last (Backfill; None: not answered, counted backfill_failed):
@@ -353,7 +356,8 @@ class Backfill:
     its checkpoint, a message lost in transit), its cseqs are fetched chunk by chunk (fetch(first, last) ->
     validated (key, message) pairs, None when nobody answered) and pushed into the merge
     (StreamFollower.backfill); each chunk holds the merge's timeout for the hole from its start
-    (SequenceMerger.touch). Counted in the stream status: backfilled, backfill_empty, backfill_failed.
+    (StreamFollower.hold). A hole nobody answered for (no ingest history) is not fetched again: the merge's
+    timeout skips it as a gap. Counted in the stream status: backfilled, backfill_empty, backfill_failed.
     Not for a consumer whose sample handling waits releasing the lock (the ins's --lockstep): fetched samples
     pushed while one is being handled would enter the merge in the middle of its release."""
 
@@ -362,25 +366,36 @@ class Backfill:
         self.follower, self.fetch, self.after_s, self.chunk = follower, fetch, after_s, chunk
         self._idle_until = 0.0  # [monotonic s] after a round that got nothing, the next waits after_s
         self._logged = -1  # the first cseq of the last hole logged (a resume nobody answers: logged once)
+        self._unanswered = -1  # the first cseq of the last hole nobody answered for: the merge's timeout skips it
 
     def run(self, lock, stopping: Callable[[], bool]) -> None:
         """One round (the ticker's thread): fill the hole the stream has waited behind for after_s, if any."""
         if time.monotonic() < self._idle_until:
             return
         with lock:
-            hole = self.follower.hole(self.after_s)
+            hole = self._next(self.after_s)
         if hole is not None and hole[0] != self._logged:
             self._logged = hole[0]
             self.follower.log.info("backfilling from cseq %d (to %s) from the ingest's history", hole[0],
-                                   hole[1] if hole[1] < 1 << 62 else "the stream")
+                                   hole[1] if hole[1] < RESUME_END else "the stream")
         while hole is not None and not stopping():
             first, last = hole[0], min(hole[1], hole[0] + self.chunk - 1)
             got = self.fetch(first, last)
             with lock:
                 self.follower.backfill(first, last, got)
-                hole = self.follower.hole(0.0) if got is not None else None
+                if got is None and hole[1] < RESUME_END:
+                    self._unanswered = first
+                hole = self._next(0.0) if got is not None else None
             if got is None or (hole is not None and hole[0] <= first):  # no answer or no progress: wait after_s
                 self._idle_until, hole = time.monotonic() + self.after_s, None
+
+    def _next(self, after_s: float) -> tuple[int, int] | None:
+        """The hole to fetch now (held timeout_s more for it), unless nobody answered for it already."""
+        hole = self.follower.hole(after_s)
+        if hole is None or hole[0] == self._unanswered:
+            return None
+        self.follower.hold()
+        return hole
 
 
 def start_ticker(follower: StreamFollower, lock, stopping: Callable[[], bool], period_s: float = 0.25,
