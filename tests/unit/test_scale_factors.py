@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from zennav.datasets import kfgins
+from zennav.metrics import ScaleFactorErrors
 from zennav.nav.eskf import N_STATES, error_model, scale_factor_coupling
 from zennav.nav.navigator import Navigator
 from zennav.nav.types import NS, ImuNoise
@@ -32,19 +33,10 @@ def car_run(car):
 
 def _scale_factor_run(ds):
     """ds replayed by the 21-state filter: the navigator at the end, and (error / sigma) of the six scale factors
-    (gyro x, y, z, accelerometer x, y, z) against the simulated ones every EVERY_S seconds of the run (K, 6)."""
-    nav = Navigator(ds.config, ds.initial)
-    truth = np.hstack([ds.notes["gyro_scale"], ds.notes["accel_scale"]])
-    sl = slice(nav.aug_blocks["gyro_scale"].start, nav.aug_blocks["accel_scale"].stop)
-    t0_ns, every_ns, z = int(ds.imu.t_ns[0]), int(EVERY_S * NS), []
-
-    def on_epoch(nv: Navigator) -> None:
-        if nv.t_ns > t0_ns and (nv.t_ns - t0_ns) % every_ns == 0:
-            k = int(np.searchsorted(ds.imu.t_ns, nv.t_ns))
-            z.append((nv.aug_value(sl) - truth[k]) / np.sqrt(np.diag(nv.P)[sl]))
-
-    run_replay(ds, navigator=nav, on_epoch=on_epoch)
-    return nav, np.array(z)
+    against the simulated ones every EVERY_S seconds of the run (K, 6)."""
+    nav, rec = Navigator(ds.config, ds.initial), ScaleFactorErrors(ds, EVERY_S)
+    run_replay(ds, navigator=nav, on_epoch=rec)
+    return nav, np.array(rec.z)
 
 
 def test_states_follow_the_imu_description(car):
