@@ -1,4 +1,5 @@
-"""Accuracy of a replay against the dataset's truth, and the reports written by `zennav replay --out`.
+"""Accuracy of a replay against the dataset's truth (and of the 21-state filter's scale factors against a
+simulation's), and the reports written by `zennav replay --out`.
 
 Errors are computed only at truth epochs inside the solution's time span. Position errors are NED
 metres of the same physical point as the truth (the IMU, or the GNSS antenna when the truth is the
@@ -13,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .nav import earth
+from .nav.navigator import Navigator
 from .nav.rotation import quat_to_dcm, quat_to_euler, wrap_angle
 from .nav.types import NS, Dataset
 from .replay import ReplayResult
@@ -184,3 +186,31 @@ def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_
                     "distance_m": dist, "end_horizontal_m": float(err[-1]), "max_horizontal_m": float(err.max()),
                     "drift_pct": 100.0 * float(err[-1]) / dist if dist > 0 else None})
     return out
+
+
+class ScaleFactorErrors:
+    """A replay's on_epoch recorder (run_replay(on_epoch=...)) of the 21-state filter's IMU scale factors against a
+    simulated dataset's (zennav.sim.scenarios: notes["gyro_scale"], notes["accel_scale"], (N, 3) at the IMU samples):
+    every every_s [s] of the run, per state (gyro x, y, z, accelerometer x, y, z) a row of error / sigma in ``z``,
+    sigma / prior sigma in ``ratio`` and truth / prior sigma in ``draw`` (prior: the ImuNoise 1-sigma)."""
+
+    def __init__(self, ds: Dataset, every_s: float = 30.0):
+        self.t_ns = ds.imu.t_ns
+        self.truth = np.hstack([ds.notes["gyro_scale"], ds.notes["accel_scale"]])
+        noise = ds.config.imu_noise
+        self.prior = np.repeat([noise.gyro_scale_std, noise.accel_scale_std], 3)
+        self.every_ns = int(round(every_s * NS))
+        self.z: list[np.ndarray] = []
+        self.ratio: list[np.ndarray] = []
+        self.draw: list[np.ndarray] = []
+
+    def __call__(self, nav: Navigator) -> None:
+        t0_ns = int(self.t_ns[0])
+        if nav.t_ns <= t0_ns or (nav.t_ns - t0_ns) % self.every_ns:
+            return
+        sl = slice(nav.aug_blocks["gyro_scale"].start, nav.aug_blocks["accel_scale"].stop)
+        truth = self.truth[int(np.searchsorted(self.t_ns, nav.t_ns))]
+        sd = np.sqrt(np.diag(nav.P)[sl])
+        self.z.append((nav.aug_value(sl) - truth) / sd)
+        self.ratio.append(sd / self.prior)
+        self.draw.append(truth / self.prior)

@@ -274,22 +274,29 @@ def test_smoothed_sigma_is_consistent_per_state_group(car_runs, group):
 
 
 def test_augmented_states_are_smoothed_with_the_rest():
-    """21 states (gyro and accelerometer scale factors as augmented states): the smoother runs on the engine's
-    whole state, the outage is bounded as with 15 states and the smoothed scale factors are consistent with their
-    smoothed 1-sigma and not farther from the simulator's than the forward filter's (RMS over the run's epochs)."""
-    ds = make_dataset("car", duration_s=300.0, imu_rate_hz=100.0, gnss_rate_hz=1.0, seed=4, scale_ppm=(1000.0, 1000.0))
+    """21 states (gyro and accelerometer scale factors as augmented states, simulated as the Gauss-Markov process
+    the filter is told): the smoother runs on the engine's whole state, the outage is bounded as with 15 states, and
+    the smoothed scale factors are consistent with their smoothed 1-sigma and, over all six, not farther from the
+    simulator's than the forward filter's (mean square over the run's epochs). A multirotor, whose manoeuvres
+    observe the gyro scale factors within 300 s (forward 1-sigma about 0.5-0.65 of the prior, smoothed 0.25-0.45):
+    the smoother's expected gain there is larger than what one run's draw can take away. Not per axis: an axis
+    left near its prior (a car's in 300 s: forward 1-sigma 0.72-1.0 of it, smoothed 0.71-1.0) gains a few % in
+    expectation, and its error is one draw over the whole run, which may be farther."""
+    ds = make_dataset("multirotor", duration_s=300.0, imu_rate_hz=100.0, gnss_rate_hz=1.0, seed=4,
+                      scale_ppm=(3000.0, 3000.0))
     res = run_replay(ds, outages=[(150.0, 30.0)], smoothing=True)
     sm = res.smoothing
     assert sm is not None and res.smoothed is not None
     assert sm.s.shape[1] == 21 and sm.values.shape[1] == 12
     fwd, smo = evaluate(ds, res), evaluate(ds, res.smoothed)
     assert smo["outage_max_horizontal_max_m"] < 0.3 * fwd["outage_max_horizontal_max_m"]
-    truth = np.concatenate([ds.notes["gyro_scale"], ds.notes["accel_scale"]])
+    k = np.searchsorted(ds.imu.t_ns, sm.t_ns)  # the simulated scale factors at the epochs
+    truth = np.concatenate([ds.notes["gyro_scale"][k], ds.notes["accel_scale"][k]], axis=1)
     forward = sm.values + sm.s[:, 9:]  # the forward filter's values after each epoch's feedback
-    rms_fwd = np.sqrt(np.mean((forward[:, 6:] - truth) ** 2, axis=0))
-    rms_smo = np.sqrt(np.mean((sm.values[:, 6:] - truth) ** 2, axis=0))
+    ms_fwd = np.mean((forward[:, 6:] - truth) ** 2, axis=0)
+    ms_smo = np.mean((sm.values[:, 6:] - truth) ** 2, axis=0)
     ratio = np.sqrt(np.mean(((sm.values[:, 6:] - truth) / sm.std[:, 15:]) ** 2))
-    print(f"scale factors: RMS error forward {np.round(rms_fwd * 1e6)} ppm, smoothed {np.round(rms_smo * 1e6)} ppm, "
-          f"smoothed rms(error/sigma) {ratio:.2f}")
-    assert np.all(rms_smo <= rms_fwd * 1.05)
+    print(f"scale factors: RMS error forward {np.round(np.sqrt(ms_fwd) * 1e6)} ppm, smoothed "
+          f"{np.round(np.sqrt(ms_smo) * 1e6)} ppm, smoothed rms(error/sigma) {ratio:.2f}")
+    assert ms_smo.sum() <= ms_fwd.sum()
     assert 0.5 <= ratio <= 1.5

@@ -15,7 +15,7 @@ import numpy as np
 from ..nav import earth
 from ..nav.rotation import wrap_angle
 from ..nav.types import NS, Dataset, FixType, ImuNoise, InitialState, NavConfig, Truth
-from .sensors import ImuErrors, simulate_gnss, simulate_imu, simulate_odometer
+from .sensors import ImuErrors, gauss_markov, simulate_gnss, simulate_imu, simulate_odometer
 from .trajectory import make_trajectory
 
 _DEG_PER_H = math.radians(1.0) / 3600.0  # rad/s
@@ -78,8 +78,10 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     antenna at lever_arm_b [m, FRD] at gnss_rate_hz on whole-second-aligned epochs with white noise
     gnss_std_ned [m] and gnss_vel_std [m/s] (None: no velocity); fix type RTK_FIXED when every std is
     <= 0.1 m, else SINGLE, unless gnss_fix is given. scale_ppm: 1-sigma of the gyro and accelerometer
-    scale-factor errors [ppm] (one value: both), drawn once per axis (constant) and told to the filter (ImuNoise
-    scale std with the bias correlation time: a KF-GINS-style 21-state filter estimates them); 0: none.
+    scale-factor errors [ppm] (one value: both), told to the filter (ImuNoise scale std with the bias correlation
+    time: a KF-GINS-style 21-state filter estimates them) and simulated as that model says: first-order
+    Gauss-Markov per axis, started from its stationary distribution as the biases (notes["gyro_scale"],
+    notes["accel_scale"]: the series (N, 3) at the IMU samples); 0: none (zeros).
     start_llh_deg: (lat [deg], lon [deg], h [m]).
     Everything random derives from seed (trajectory, IMU errors, GNSS noise and initial errors each from
     their own stream). The initial state is the truth at the first IMU sample, plus (perturb_initial)
@@ -97,11 +99,13 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     n_imu = int(round(duration_s * imu_rate_hz)) + 1
     imu_t_ns = t0_ns + np.arange(n_imu, dtype=np.int64) * int(round(NS / imu_rate_hz))
     sg_ppm, sa_ppm = (float(scale_ppm), float(scale_ppm)) if isinstance(scale_ppm, (int, float)) else scale_ppm
-    scale_draw = np.random.default_rng(ss_scale).standard_normal((2, 3))
-    gyro_scale, accel_scale = scale_draw[0] * sg_ppm * _PPM, scale_draw[1] * sa_ppm * _PPM
+    gyro_scale = accel_scale = np.zeros((n_imu, 3))
     if sg_ppm or sa_ppm:
         noise = replace(noise, gyro_scale_std=sg_ppm * _PPM, accel_scale_std=sa_ppm * _PPM,
                         gyro_scale_tau=noise.gyro_bias_tau, accel_scale_tau=noise.accel_bias_tau)
+        rng_scale, dt = np.random.default_rng(ss_scale), int(round(NS / imu_rate_hz)) / NS
+        gyro_scale = gauss_markov(n_imu, dt, noise.gyro_scale_std, noise.gyro_scale_tau, rng_scale)
+        accel_scale = gauss_markov(n_imu, dt, noise.accel_scale_std, noise.accel_scale_tau, rng_scale)
     imu, errors = simulate_imu(traj, imu_t_ns, t0_ns, noise, np.random.default_rng(ss_imu), gyro_scale=gyro_scale,
                                accel_scale=accel_scale)
     if gnss_fix is None:
@@ -139,7 +143,7 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
         "initial_error": {"pos_ned_m": err_pos_ned.tolist(), "v_n_mps": err_v_n.tolist(),
                           "euler_rad": err_euler.tolist()},
         "imu_errors": errors,
-        "gyro_scale": gyro_scale, "accel_scale": accel_scale,  # true scale-factor errors [-] per axis
+        "gyro_scale": gyro_scale, "accel_scale": accel_scale,  # true scale-factor errors [-] (N, 3)
         "trajectory": traj,
     }
     odometer = None

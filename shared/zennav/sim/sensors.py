@@ -81,8 +81,8 @@ def simulate_imu(traj: Trajectory, t_ns, t0_ns: int, noise: ImuNoise, rng: np.ra
                  gyro_bias_offset=(0.0, 0.0, 0.0), accel_bias_offset=(0.0, 0.0, 0.0), n_nodes: int = 3,
                  gyro_scale=(0.0, 0.0, 0.0), accel_scale=(0.0, 0.0, 0.0)) -> tuple[ImuData, ImuErrors]:
     """IMU samples at uniformly spaced t_ns (each the end of its interval, the first one's interval
-    starting one period earlier): (1 + scale) * ideal increments + bias * dt + white noise, scale the constant
-    scale-factor errors per axis [-] (gyro_scale, accel_scale).
+    starting one period earlier): (1 + scale) * ideal increments + bias * dt + white noise, scale the
+    scale-factor errors [-] (gyro_scale, accel_scale): per axis (3,), constant, or per sample and axis (N, 3).
 
     Bias = optional constant offset [rad/s, m/s^2] + Gauss-Markov(noise.*_bias_std, noise.*_bias_tau)
     drawn from its stationary distribution, so its value at the first sample is the turn-on bias.
