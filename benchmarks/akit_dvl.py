@@ -10,9 +10,10 @@ run under water from the reference's initial state). Figures per row:
 - final: horizontal error at the last reference row [m];
 - drift: final / horizontal distance travelled since the last GNSS fix (the start when none) [%].
 A first table describes the data of each trajectory: the estimated IMU/reference skew [s], the distance travelled
-[m], the yaw travel (sum of |heading change| between reference rows, waves included) [rad], and the gyro-only
+[m], the yaw travel (sum of |heading change| between reference rows, waves included) [rad], the gyro-only
 attitude RMS error [deg] against the reference (large: the IMU and the reference disagree beyond what the filter
-can fix: bad data, not a bad filter).
+can fix: bad data, not a bad filter), and the drift of the DVL's own dead reckoning with the reference attitude
+from the last GNSS fix [%] (dvl_dead_reckoning: the floor of a filter that fuses this DVL as it is).
 
 METHODS is the one list of what is compared: name -> run(dataset) -> ReplayResult. Another method (e.g. a learned
 compensation) is one more entry.
@@ -47,10 +48,10 @@ from zennav.datasets.akit import gyro_attitude
 from zennav.datasets.registry import akit_specs, load_dataset
 from zennav.learn.loop import InProcessLoop, make_compensator
 from zennav.learn.settings import compensation_settings
-from zennav.metrics import evaluate, ned_errors
+from zennav.metrics import drift, evaluate, ned_errors
 from zennav.nav import earth
-from zennav.nav.rotation import wrap_angle
-from zennav.nav.types import Dataset
+from zennav.nav.rotation import euler_to_dcm, wrap_angle
+from zennav.nav.types import NS, Dataset
 from zennav.replay import ReplayResult, run_replay
 
 
@@ -101,25 +102,54 @@ def score(ds: Dataset, res: ReplayResult) -> dict:
     end = int(np.searchsorted(truth.t_ns, res.t_ns[-1], side="right")) - 1
     est = np.array([np.interp(truth.t_ns[end], res.t_ns, res.llh[:, i]) for i in range(3)])
     final = float(np.hypot(*ned_errors(est[None], truth.llh[end][None])[0, :2]))
-    t_from = int(ds.gnss.t_ns[-1]) if len(ds.gnss) else int(res.t_ns[0])
-    rows = (truth.t_ns >= t_from) & (truth.t_ns <= truth.t_ns[end])
-    ned = earth.llh_to_ned(truth.llh[rows], truth.llh[rows][0])
-    distance = float(np.sum(np.hypot(*np.diff(ned[:, :2], axis=0).T)))
+    rows = (truth.t_ns >= _last_fix_ns(ds, int(res.t_ns[0]))) & (truth.t_ns <= truth.t_ns[end])
+    distance, pct = drift(truth.llh[rows], final)
     return {"rmse_m": m["horizontal_rms_m"], "final_m": final, "distance_m": distance,
-            "drift_pct": 100.0 * final / distance if distance > 0 else math.nan, "engine": m["engine"]}
+            "drift_pct": math.nan if pct is None else pct, "engine": m["engine"]}
+
+
+def _last_fix_ns(ds: Dataset, start_ns: int) -> int:
+    """Where a run's drift is counted from: the last GNSS fix, start_ns when there is none [ns]."""
+    return int(ds.gnss.t_ns[-1]) if len(ds.gnss) else start_ns
+
+
+def dvl_dead_reckoning(ds: Dataset) -> float:
+    """Drift [%] of the DVL's own dead reckoning, the floor of a filter that trusts this DVL: its velocity (v_d, the
+    DVL frame = body frame at the IMU, zennav.datasets.akit) rotated by the REFERENCE attitude and integrated
+    (trapezoid) from the reference position at the last GNSS fix; an invalid velocity holds the last valid one.
+    Same definition of drift as score."""
+    truth, dvl = ds.truth, ds.dvl
+    assert truth is not None and truth.euler is not None and dvl is not None and dvl.velocity_d is not None
+    t0 = _last_fix_ns(ds, int(truth.t_ns[0]))
+    k = (dvl.t_ns >= max(t0, int(truth.t_ns[0]))) & (dvl.t_ns <= truth.t_ns[-1])
+    t_ns, v_d = dvl.t_ns[k], dvl.velocity_d[k].copy()
+    ok = np.ones(len(t_ns), dtype=bool) if dvl.velocity_valid is None else dvl.velocity_valid[k].astype(bool)
+    ok &= np.all(np.isfinite(v_d), axis=1)
+    v_d = v_d[np.maximum.accumulate(np.where(ok, np.arange(len(ok)), 0))]  # hold the last valid velocity
+    euler = np.column_stack([np.interp(t_ns, truth.t_ns, np.unwrap(truth.euler[:, i])) for i in range(3)])
+    v_n = np.array([euler_to_dcm(e) @ v for e, v in zip(euler, v_d, strict=True)])
+    ned_ref = earth.llh_to_ned(truth.llh, truth.llh[0])
+    p0 = np.array([np.interp(t_ns[0], truth.t_ns, ned_ref[:, i]) for i in range(3)])
+    p = p0 + np.vstack([np.zeros(3), np.cumsum(0.5 * (v_n[1:] + v_n[:-1]) * np.diff(t_ns)[:, None] / NS, axis=0)])
+    end = int(np.searchsorted(truth.t_ns, t_ns[-1], side="right")) - 1
+    p_end = np.array([np.interp(truth.t_ns[end], t_ns, p[:, i]) for i in range(3)])
+    rows = (truth.t_ns >= t0) & (truth.t_ns <= truth.t_ns[end])
+    _, pct = drift(truth.llh[rows], float(np.hypot(*(p_end - ned_ref[end])[:2])))
+    return math.nan if pct is None else pct
 
 
 def data_quality(ds: Dataset) -> dict:
-    """Skew [s], distance [m], yaw travel [rad] and gyro-only attitude RMS [deg] of a trajectory."""
+    """Skew [s], distance [m], yaw travel [rad], gyro-only attitude RMS [deg] and the DVL dead-reckoning drift [%]
+    of a trajectory."""
     truth = ds.truth
     assert truth is not None and truth.euler is not None
     t, euler = gyro_attitude(ds.imu, ds.initial.t_ns, ds.initial.euler, float(ds.initial.llh[0]))
     rows = (truth.t_ns > t[0]) & (truth.t_ns <= t[-1])
     k = np.searchsorted(t, truth.t_ns[rows])
     rms = np.degrees(np.sqrt(np.mean(wrap_angle(euler[k] - truth.euler[rows]) ** 2, axis=0)))
-    ned = earth.llh_to_ned(truth.llh, truth.llh[0])
-    return {"skew_s": ds.notes["skew_s"], "distance_m": float(np.sum(np.hypot(*np.diff(ned[:, :2], axis=0).T))),
-            "turn_rad": float(np.sum(np.abs(np.diff(np.unwrap(truth.euler[:, 2]))))), "gyro_rms_deg": rms}
+    return {"skew_s": ds.notes["skew_s"], "distance_m": drift(truth.llh, 0.0)[0],
+            "turn_rad": float(np.sum(np.abs(np.diff(np.unwrap(truth.euler[:, 2]))))), "gyro_rms_deg": rms,
+            "dvl_dr_pct": dvl_dead_reckoning(ds)}
 
 
 def _trajectories(text: str) -> list[int]:
@@ -168,13 +198,14 @@ def main() -> None:
                     if args.anomalies_from_s is not None else args.gnss_s}
     print(f"A-KIT, derived GNSS during the first {args.gnss_s:g} s"
           + (f", DVL anomalies {args.anomalies!r} (seed {args.seed})" if args.anomalies else ", clean DVL"))
-    print(f"{'trajectory':<13}{'skew s':>8}{'dist m':>8}{'yaw travel rad':>15}{'gyro-only r/p/y RMS deg':>26}")
+    print(f"{'trajectory':<13}{'skew s':>8}{'dist m':>8}{'yaw travel rad':>15}{'gyro-only r/p/y RMS deg':>26}"
+          f"{'DVL DR drift %':>16}")
     datasets = {}
     for n in _trajectories(args.trajectories):
         ds = datasets[n] = load_dataset(f"akit:Trajectory{n}", **options)
         q = data_quality(ds)
         print(f"Trajectory{n:<3}{q['skew_s']:>+8.3f}{q['distance_m']:>8.0f}{q['turn_rad']:>15.2f}"
-              f"{'/'.join(f'{x:.2f}' for x in q['gyro_rms_deg']):>26}", flush=True)
+              f"{'/'.join(f'{x:.2f}' for x in q['gyro_rms_deg']):>26}{q['dvl_dr_pct']:>16.3f}", flush=True)
     print(f"\n{'trajectory':<13}{'method':<22}{'RMSE m':>9}{'final m':>9}{'drift %':>9}{'DVL fused':>10}")
     results: dict[str, list[dict]] = {m: [] for m in methods}
     for n, ds in datasets.items():
