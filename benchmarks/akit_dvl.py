@@ -27,12 +27,14 @@ the GNSS-aided filter the reference of the beam errors, as the seed's PHINS + GP
 kinds injected from the start (--train-anomalies, seeded), so that the training samples contain anomalous
 measurements (seed step 2). The last set is written to --model-out and every test run loads it (InProcessLoop
 .load_model: frozen, nothing learned from the test trajectory). With --seeds 0,1,2 each seed retrains (the
-injection and the model seed) and the tables give the per-seed figures and the median over the seeds.
+injection and the model seed; --model with "{seed}" loads one model per seed instead), --also-clean runs the clean DVL
+through the same models too, and a last table gives per condition and method the mean RMSE over the trajectories of
+each seed, the median over the seeds and that median against the tight EKF's (the issue's "X % lower RMSE").
 
     .venv/bin/python benchmarks/akit_dvl.py [--trajectories 1-13] [--methods "loose EKF,tight EKF"] [--gnss-s 60]
-        [--anomalies all --anomalies-from-s 60] [--seed 0]
-    .venv/bin/python benchmarks/akit_dvl.py --trajectories 12,13 --train 1-11 --anomalies all --seeds 0,1,2 \
-        --methods "loose EKF,tight EKF,tight VBKF,tight VBKF + PSO-ANFIS"
+        [--anomalies all --anomalies-from-s 60 [--also-clean]] [--seeds 0]
+    .venv/bin/python benchmarks/akit_dvl.py --trajectories 12,13 --train 1-11 --anomalies all --also-clean \
+        --seeds 0,1,2 --methods "loose EKF,tight EKF,tight VBKF,tight VBKF + PSO-ANFIS"
 """
 from __future__ import annotations
 
@@ -160,48 +162,14 @@ def _trajectories(text: str) -> list[int]:
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--trajectories", default=f"1-{len(akit_specs())}", help="e.g. 1-13 or 2,12,13")
-    ap.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated of: {', '.join(METHODS)}")
-    ap.add_argument("--gnss-s", type=float, default=60.0, help="derived GNSS fixes during the first S seconds")
-    ap.add_argument("--anomalies", default=None, help="DVL anomaly spec (zennav.datasets.dvl_anomalies)")
-    ap.add_argument("--anomalies-from-s", type=float, default=None, help="[s from the start; default --gnss-s]")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--train", default="1-11", help=f"{LEARNED}: the training trajectories")
-    ap.add_argument("--train-gnss-s", type=float, default=400.0, help=f"{LEARNED}: derived GNSS in training [s]")
-    ap.add_argument("--train-anomalies", default="all", help=f"{LEARNED}: anomalies injected in training")
-    ap.add_argument("--model", default=None, help=f"{LEARNED}: use this trained model (no training)")
-    ap.add_argument("--model-out", default="out/akit_dvl_beam_model.msgpack", help=f"{LEARNED}: where training "
-                    "writes the model")
-    args = ap.parse_args()
-    methods = [m.strip() for m in args.methods.split(",")]
-    if LEARNED in methods:
-        model = args.model
-        if model is None:
-            train = _trajectories(args.train)
-            if set(train) & set(_trajectories(args.trajectories)):
-                ap.error("--train and --trajectories overlap: the model must not see a test trajectory")
-            Path(args.model_out).parent.mkdir(parents=True, exist_ok=True)
-            status = train_dvl_model(train, {"gnss_s": args.train_gnss_s, "seed": args.seed, "anomalies":
-                                             args.train_anomalies, "anomalies_from_s": 0.0}, args.seed, args.model_out)
-            model = args.model_out
-            print(f"{LEARNED}: trained on trajectories {args.train} (GNSS {args.train_gnss_s:g} s, anomalies "
-                  f"{args.train_anomalies!r}, seed {args.seed}): {status['trainer']}; model {model}", flush=True)
-        METHODS[LEARNED] = learned_method(model)
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        ap.error(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
-    options = {"gnss_s": args.gnss_s, "seed": args.seed}
-    if args.anomalies:
-        options |= {"anomalies": args.anomalies, "anomalies_from_s": args.anomalies_from_s
-                    if args.anomalies_from_s is not None else args.gnss_s}
-    print(f"A-KIT, derived GNSS during the first {args.gnss_s:g} s"
-          + (f", DVL anomalies {args.anomalies!r} (seed {args.seed})" if args.anomalies else ", clean DVL"))
+def run_condition(trajectories: list[int], methods: list[str], options: dict, title: str) -> dict[str, list[dict]]:
+    """The data table and one row per trajectory x method (module docstring) for these loader options; returns
+    method -> the score of each trajectory."""
+    print(f"\n{title}")
     print(f"{'trajectory':<13}{'skew s':>8}{'dist m':>8}{'yaw travel rad':>15}{'gyro-only r/p/y RMS deg':>26}"
           f"{'DVL DR drift %':>16}")
     datasets = {}
-    for n in _trajectories(args.trajectories):
+    for n in trajectories:
         ds = datasets[n] = load_dataset(f"akit:Trajectory{n}", **options)
         q = data_quality(ds)
         print(f"Trajectory{n:<3}{q['skew_s']:>+8.3f}{q['distance_m']:>8.0f}{q['turn_rad']:>15.2f}"
@@ -222,6 +190,78 @@ def main() -> None:
         print(f"{'mean':<13}{name:<22}{np.mean([r['rmse_m'] for r in rows]):>9.2f}"
               f"{np.mean([r['final_m'] for r in rows]):>9.2f}{np.mean([r['drift_pct'] for r in rows]):>9.3f}"
               f"   median drift {np.median([r['drift_pct'] for r in rows]):.3f} %")
+    return results
+
+
+def print_summary(table: dict[tuple[str, str], dict[int, list[dict]]], seeds: list[int]) -> None:
+    """Per condition and method: the RMSE mean over the trajectories of each seed, their median over the seeds and
+    that median against the tight EKF's of the same condition."""
+    print(f"\nsummary: RMSE [m], mean over the trajectories per seed; median over seeds {seeds}")
+    print(f"{'condition':<11}{'method':<24}" + "".join(f"{f's{k}':>8}" for k in seeds)
+          + f"{'median':>8}{'vs tight EKF':>14}")
+    for (condition, name), per_seed in table.items():
+        means = [float(np.mean([r["rmse_m"] for r in per_seed[k]])) for k in seeds]
+        ekf = table.get((condition, "tight EKF"))
+        rel = ""
+        if ekf is not None:
+            ref = float(np.median([np.mean([r["rmse_m"] for r in ekf[k]]) for k in seeds]))
+            rel = f"{100.0 * (np.median(means) / ref - 1.0):>+13.1f}%"
+        print(f"{condition:<11}{name:<24}" + "".join(f"{m:>8.2f}" for m in means) + f"{np.median(means):>8.2f}{rel}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--trajectories", default=f"1-{len(akit_specs())}", help="e.g. 1-13 or 2,12,13")
+    ap.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated of: {', '.join(METHODS)}")
+    ap.add_argument("--gnss-s", type=float, default=60.0, help="derived GNSS fixes during the first S seconds")
+    ap.add_argument("--anomalies", default=None, help="DVL anomaly spec (zennav.datasets.dvl_anomalies)")
+    ap.add_argument("--anomalies-from-s", type=float, default=None, help="[s from the start; default --gnss-s]")
+    ap.add_argument("--also-clean", action="store_true", help="with --anomalies: the clean DVL too, same models")
+    ap.add_argument("--seeds", "--seed", default="0", help="e.g. 0 or 0,1,2: derived noise, anomalies, model")
+    ap.add_argument("--train", default="1-11", help=f"{LEARNED}: the training trajectories")
+    ap.add_argument("--train-gnss-s", type=float, default=400.0, help=f"{LEARNED}: derived GNSS in training [s]")
+    ap.add_argument("--train-anomalies", default="all", help=f"{LEARNED}: anomalies injected in training")
+    ap.add_argument("--model", default=None, help=f"{LEARNED}: use this trained model (no training; {{seed}} is "
+                    "replaced by the seed)")
+    ap.add_argument("--model-out", default="out/akit_dvl_beam_model_s{seed}.msgpack", help=f"{LEARNED}: where "
+                    "training writes the model ({seed} is replaced by the seed)")
+    args = ap.parse_args()
+    methods = [m.strip() for m in args.methods.split(",")]
+    unknown = [m for m in methods if m not in [*METHODS, LEARNED]]
+    if unknown:
+        ap.error(f"unknown method(s) {unknown}; known: {', '.join([*METHODS, LEARNED])}")
+    trajectories = _trajectories(args.trajectories)
+    if LEARNED in methods and args.model is None and set(_trajectories(args.train)) & set(trajectories):
+        ap.error("--train and --trajectories overlap: the model must not see a test trajectory")
+    seeds = [int(x) for x in args.seeds.split(",")]
+    table: dict[tuple[str, str], dict[int, list[dict]]] = {}
+    for seed in seeds:
+        if LEARNED in methods:
+            model = None if args.model is None else args.model.format(seed=seed)
+            if model is None:
+                model = args.model_out.format(seed=seed)
+                Path(model).parent.mkdir(parents=True, exist_ok=True)
+                status = train_dvl_model(_trajectories(args.train), {
+                    "gnss_s": args.train_gnss_s, "seed": seed, "anomalies": args.train_anomalies,
+                    "anomalies_from_s": 0.0}, seed, model)
+                print(f"{LEARNED}: trained on trajectories {args.train} (GNSS {args.train_gnss_s:g} s, anomalies "
+                      f"{args.train_anomalies!r}, seed {seed}): {status['trainer']}; model {model}", flush=True)
+            METHODS[LEARNED] = learned_method(model)
+        conditions = []
+        base = {"gnss_s": args.gnss_s, "seed": seed}
+        if args.anomalies:
+            conditions.append(("anomalies", base | {"anomalies": args.anomalies, "anomalies_from_s":
+                                                    args.anomalies_from_s if args.anomalies_from_s is not None
+                                                    else args.gnss_s}))
+        if not args.anomalies or args.also_clean:
+            conditions.append(("clean", base))
+        for condition, options in conditions:
+            title = (f"A-KIT, derived GNSS during the first {args.gnss_s:g} s, seed {seed}, "
+                     + (f"DVL anomalies {args.anomalies!r}" if condition == "anomalies" else "clean DVL"))
+            for name, rows in run_condition(trajectories, methods, options, title).items():
+                table.setdefault((condition, name), {})[seed] = rows
+    if len(seeds) > 1:
+        print_summary(table, seeds)
 
 
 if __name__ == "__main__":
