@@ -115,11 +115,12 @@ def _last_fix_ns(ds: Dataset, start_ns: int) -> int:
     return int(ds.gnss.t_ns[-1]) if len(ds.gnss) else start_ns
 
 
-def dvl_dead_reckoning(ds: Dataset) -> float:
+def dvl_dead_reckoning(ds: Dataset, yaw_rad: float = 0.0, scale: float = 0.0) -> float:
     """Drift [%] of the DVL's own dead reckoning, the floor of a filter that trusts this DVL: its velocity (v_d, the
     DVL frame = body frame at the IMU, zennav.datasets.akit) rotated by the REFERENCE attitude and integrated
     (trapezoid) from the reference position at the last GNSS fix; an invalid velocity holds the last valid one.
-    Same definition of drift as score."""
+    Same definition of drift as score. A calibration (yaw_rad, scale: v_d = (1 + scale) R_z(yaw_rad) v_b, as
+    benchmarks/akit_dvl_floor.py fits it) is taken out first: v_b = R_z(-yaw_rad) v_d / (1 + scale)."""
     truth, dvl = ds.truth, ds.dvl
     assert truth is not None and truth.euler is not None and dvl is not None and dvl.velocity_d is not None
     t0 = _last_fix_ns(ds, int(truth.t_ns[0]))
@@ -128,6 +129,7 @@ def dvl_dead_reckoning(ds: Dataset) -> float:
     ok = np.ones(len(t_ns), dtype=bool) if dvl.velocity_valid is None else dvl.velocity_valid[k].astype(bool)
     ok &= np.all(np.isfinite(v_d), axis=1)
     v_d = v_d[np.maximum.accumulate(np.where(ok, np.arange(len(ok)), 0))]  # hold the last valid velocity
+    v_d = v_d @ euler_to_dcm(np.array([0.0, 0.0, -yaw_rad])).T / (1.0 + scale)
     euler = np.column_stack([np.interp(t_ns, truth.t_ns, np.unwrap(truth.euler[:, i])) for i in range(3)])
     v_n = np.array([euler_to_dcm(e) @ v for e, v in zip(euler, v_d, strict=True)])
     ned_ref = earth.llh_to_ned(truth.llh, truth.llh[0])
@@ -154,7 +156,8 @@ def data_quality(ds: Dataset) -> dict:
             "dvl_dr_pct": dvl_dead_reckoning(ds)}
 
 
-def _trajectories(text: str) -> list[int]:
+def parse_trajectories(text: str) -> list[int]:
+    """Trajectory numbers of "1-11", "2,12,13" or "1-3,12"."""
     out: list[int] = []
     for part in text.split(","):
         a, _, b = part.partition("-")
@@ -230,8 +233,8 @@ def main() -> None:
     unknown = [m for m in methods if m not in [*METHODS, LEARNED]]
     if unknown:
         ap.error(f"unknown method(s) {unknown}; known: {', '.join([*METHODS, LEARNED])}")
-    trajectories = _trajectories(args.trajectories)
-    if LEARNED in methods and args.model is None and set(_trajectories(args.train)) & set(trajectories):
+    trajectories = parse_trajectories(args.trajectories)
+    if LEARNED in methods and args.model is None and set(parse_trajectories(args.train)) & set(trajectories):
         ap.error("--train and --trajectories overlap: the model must not see a test trajectory")
     seeds = [int(x) for x in args.seeds.split(",")]
     table: dict[tuple[str, str], dict[int, list[dict]]] = {}
@@ -241,7 +244,7 @@ def main() -> None:
             if model is None:
                 model = args.model_out.format(seed=seed)
                 Path(model).parent.mkdir(parents=True, exist_ok=True)
-                status = train_dvl_model(_trajectories(args.train), {
+                status = train_dvl_model(parse_trajectories(args.train), {
                     "gnss_s": args.train_gnss_s, "seed": seed, "anomalies": args.train_anomalies,
                     "anomalies_from_s": 0.0}, seed, model)
                 print(f"{LEARNED}: trained on trajectories {args.train} (GNSS {args.train_gnss_s:g} s, anomalies "
