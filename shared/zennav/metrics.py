@@ -157,6 +157,15 @@ def write_solution(out_dir: Path, res: ReplayResult) -> None:
                fmt=["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%d"])
 
 
+def drift(ref_llh: np.ndarray, end_error_m: float) -> tuple[float, float | None]:
+    """Drift of a stretch: the horizontal distance travelled along its reference rows ref_llh (N, 3) [rad, rad, m]
+    [m], and end_error_m (the horizontal error at its last row [m]) as a percentage of it (None for no distance),
+    the figure dead reckoning (INS/DVL, odometry) is quoted in."""
+    step = ned_errors(ref_llh[1:], ref_llh[:-1])
+    dist = float(np.hypot(step[:, 0], step[:, 1]).sum())
+    return dist, (100.0 * float(end_error_m) / dist if dist > 0 else None)
+
+
 UNDERWATER_DEPTH_M = 0.5  # [m] the truth deeper than this below the water surface is under water (no GNSS)
 
 
@@ -180,11 +189,10 @@ def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_
         ref = truth.llh[idx]
         e = ned_errors(_interp(truth.t_ns[idx], res.t_ns, res.llh), ref)
         err = np.hypot(e[:, 0], e[:, 1])
-        step = ned_errors(ref[1:], ref[:-1])
-        dist = float(np.hypot(step[:, 0], step[:, 1]).sum())
+        dist, pct = drift(ref, float(err[-1]))
         out.append({"start_s": (int(truth.t_ns[idx[0]]) - t0) / NS, "end_s": (int(truth.t_ns[idx[-1]]) - t0) / NS,
                     "distance_m": dist, "end_horizontal_m": float(err[-1]), "max_horizontal_m": float(err.max()),
-                    "drift_pct": 100.0 * float(err[-1]) / dist if dist > 0 else None})
+                    "drift_pct": pct})
     return out
 
 

@@ -167,6 +167,36 @@ def test_anomalies_counts_kinds_and_seed():
     assert events_again == events and np.array_equal(again.beams, out.beams)
     other, events_other = dvl_anomalies.inject(dvl, spec, B, seed=8, t_from_ns=60 * NS)
     assert [e.start_ns for e in events_other] != [e.start_ns for e in events]
+    # the same events applied at their times: the same steps and lost beams (noise drawn afresh)
+    applied = dvl_anomalies.apply_events(dvl, events, B, np.random.default_rng(0))
+    same = np.ones(len(dvl.t_ns), bool)
+    for e in events:
+        same[(dvl.t_ns >= e.start_ns) & (dvl.t_ns <= e.end_ns)] = e.kind != "noise"
+    assert np.array_equal(applied.beam_valid, out.beam_valid) and np.array_equal(applied.beams[same], out.beams[same])
+
+
+def test_simulated_auv_bottom_loss_bursts_and_bias_jump_are_injector_events():
+    """sim:auv's timed DVL errors go through zennav.datasets.dvl_anomalies.apply_events: a bias jump adds its size to
+    its beam from its start, a noise burst multiplies the beam noise by its factor, bottom loss empties every beam;
+    everything else equals the run without them."""
+    from zennav.sim.auv import make_auv_dataset
+
+    kw = dict(duration_s=200.0, surface_s=30.0, dvl_noise_mps=0.02, dvl_dropout=0.0, dvl_outlier_prob=0.0)
+    plain = make_auv_dataset(dvl_bottom_loss="", **kw)
+    ds = make_auv_dataset(dvl_bottom_loss="150:10", dvl_burst="60:50", dvl_burst_factor=5.0,
+                          dvl_bias_jump="120:2:0.1", **kw)
+    assert [e["kind"] for e in ds.notes["dvl_anomalies"]] == ["noise", "bias", "lostall"]
+    t_s = (ds.dvl.t_ns - ds.imu.t_ns[0]) / NS
+    d = ds.dvl.beams - plain.dvl.beams
+    lost, burst, jump = (t_s >= 150) & (t_s < 160), (t_s >= 60) & (t_s < 110), t_s >= 120
+    assert not ds.dvl.beam_valid[lost].any() and np.isnan(ds.dvl.beams[lost]).all()
+    assert ds.dvl.beam_valid[~lost].all()
+    ok = ~burst & ~lost
+    assert np.allclose(d[ok][:, [0, 2, 3]], 0.0, atol=1e-12) and np.allclose(d[ok & ~jump, 1], 0.0, atol=1e-12)
+    assert np.allclose(d[ok & jump, 1], 0.1, atol=1e-12)
+    assert np.hypot(np.std(d[burst]), 0.02) == pytest.approx(5.0 * 0.02, rel=0.1)  # in all: the noise x 5
+    with pytest.raises(ValueError):
+        make_auv_dataset(dvl_burst="60:5", dvl_burst_factor=0.5, **kw)
 
 
 def test_anomaly_spec_errors():

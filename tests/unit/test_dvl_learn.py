@@ -172,6 +172,8 @@ def test_answers_release_the_sample_and_the_rule_compensates_only_the_jumped_bea
     report = [r for r in nav.pop_reports() if r.source == "dvl"][-1]
     assert report.fused and "corrected" in report.faults and "learned_compensated_3" in report.faults
     assert max(abs(x) for x in report.innovation) < 0.05  # the compensated beam agrees with the INS again
+    # fused with its noise plus the correction squared (the model's uncertainty), the others at the nominal R
+    assert report.innovation_var[2] > 0.3**2 + min(report.innovation_var[i] for i in (0, 1, 3))
     assert nav.sources["dvl"].status()["learned"]["compensated"] == 1
 
 

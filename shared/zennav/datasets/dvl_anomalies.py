@@ -13,6 +13,9 @@ Workhorse figure):
 "Parallel" and "orthogonal" are in the Janus sense (zennav.nav.beams): beams i and i+2 point in opposite horizontal
 directions (they lie in one vertical plane), beams i and i+1 in perpendicular ones.
 
+Events at given times (``apply_events``: the simulator's bottom loss, noise bursts and bias jump) go through the same
+code; an event may touch several beams (a noise burst on all four).
+
 Spec (the loader option ``-o anomalies=...``): comma-separated ``kind[:count[:magnitude[:duration_s]]]``, e.g.
 ``outlier:10,bias:2:5:30,lost2o:1``; ``all`` is one event of every kind with the defaults. Events come in random
 order at random times inside [t_from_ns, end] (the spare samples split at random between them), never overlapping
@@ -135,20 +138,50 @@ def inject(dvl: DvlData, spec, B: np.ndarray, seed: int = 0, t_from_ns: int | No
     k = first
     for (s, length), gap in zip(todo, gaps, strict=True):
         k += int(gap)
-        rows = slice(k, k + length)
-        touched[rows] = True
         cols = _beams_of(s.kind, rng)
         magnitude = 0.0
         if s.kind in ("outlier", "bias"):
             magnitude = float(rng.choice((-1.0, 1.0))) * s.magnitude * sigma_mps
-            beams[rows, cols[0]] += magnitude
         elif s.kind == "noise":
             magnitude = s.magnitude * sigma_mps
-            beams[rows, cols[0]] += magnitude * rng.standard_normal(length)
-        else:
-            valid[rows, list(cols)] = False
-        events.append(AnomalyEvent(s.kind, cols, int(t_ns[k]), int(t_ns[k + length - 1]), magnitude, length))
+        event = AnomalyEvent(s.kind, cols, int(t_ns[k]), int(t_ns[k + length - 1]), magnitude, length)
+        _apply(beams, valid, touched, slice(k, k + length), event, rng)
+        events.append(event)
         k += length + 1
+    return _with_velocity(dvl, beams, valid, touched, B), events
+
+
+def apply_events(dvl: DvlData, events, B: np.ndarray, rng: np.random.Generator) -> DvlData:
+    """A copy of dvl (with beams) with the given AnomalyEvents applied to its samples in [start_ns, end_ns] (the
+    event's samples field is not used), noise drawn from rng; B (4, 3) the beam directions (for velocity_d)."""
+    if dvl.beams is None or dvl.beam_valid is None:
+        raise ValueError("DVL anomalies are applied to beams; this DVL gives only a velocity")
+    beams, valid = dvl.beams.copy(), dvl.beam_valid.copy()
+    touched = np.zeros(len(dvl.t_ns), dtype=bool)
+    for event in events:
+        a = int(np.searchsorted(dvl.t_ns, event.start_ns, side="left"))
+        b = int(np.searchsorted(dvl.t_ns, event.end_ns, side="right"))
+        _apply(beams, valid, touched, slice(a, b), event, rng)
+    return _with_velocity(dvl, beams, valid, touched, B)
+
+
+def _apply(beams: np.ndarray, valid: np.ndarray, touched: np.ndarray, rows: slice, event: AnomalyEvent,
+           rng: np.random.Generator) -> None:
+    """Apply one event to the rows of beams / valid in place (outlier, bias: + magnitude; noise: + magnitude x
+    standard normal per sample and beam; lost kinds: invalid) and mark them touched."""
+    cols = list(event.beams)
+    touched[rows] = True
+    if event.kind in ("outlier", "bias"):
+        beams[rows, cols] += event.magnitude_mps
+    elif event.kind == "noise":
+        n = len(range(*rows.indices(len(beams))))
+        beams[rows, cols] += event.magnitude_mps * rng.standard_normal((n, len(cols)))
+    else:
+        valid[rows, cols] = False
+
+
+def _with_velocity(dvl: DvlData, beams: np.ndarray, valid: np.ndarray, touched: np.ndarray, B: np.ndarray) -> DvlData:
+    """The new DvlData; where samples were touched, velocity_d recomputed from the valid beams (module doc)."""
     velocity_d = None if dvl.velocity_d is None else dvl.velocity_d.copy()
     velocity_valid = None if dvl.velocity_valid is None else dvl.velocity_valid.copy()
     if velocity_d is not None and velocity_valid is not None:
@@ -156,4 +189,4 @@ def inject(dvl: DvlData, spec, B: np.ndarray, seed: int = 0, t_from_ns: int | No
             ok = bool(valid[k].sum() >= 3)
             velocity_d[k] = velocity_from_beams(beams[k], valid[k], B) if ok else np.nan
             velocity_valid[k] = ok
-    return DvlData(t_ns.copy(), beams, valid, velocity_d, velocity_valid), events
+    return DvlData(dvl.t_ns.copy(), beams, valid, velocity_d, velocity_valid)

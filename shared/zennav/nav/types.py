@@ -376,7 +376,7 @@ class NavConfig:
     vb_gnss: bool = False  # on the GNSS position and velocity sources
     vb_forgetting: float = 0.97  # rho, forgetting factor of the inverse-Gamma parameters
     vb_iterations: int = 3  # fixed-point iterations per update
-    vb_floor: float = 0.1  # lowest R, as a variance ratio to the nominal R
+    vb_floor: float = 1.0  # lowest R, as a variance ratio to the nominal R (1: VB only inflates R)
     vb_ceiling: float = 1e4  # highest R, as a variance ratio to the nominal R
     start_t_ns: int | None = None
     end_t_ns: int | None = None

@@ -3,9 +3,12 @@ Janus DVL and a pressure depth sensor, exact truth, seeded.
 
 Everything the DVL and the depth sensor inject is a loader option (``-o key=value``) and is written to the dataset's
 notes (``notes["injected"]``, human units): beam biases, scale factor, white noise, dropouts, outliers, bottom loss,
-noise bursts and a bias jump. GNSS fixes exist only while the IMU is at most gnss_max_depth_m below the surface (the
-antenna above the water). The DVL sees the bottom throughout except in the bottom-loss windows (a flat sea floor within
-range). Frames and units as zennav.sim.sensors.
+noise bursts and a bias jump. The last three are zennav.datasets.dvl_anomalies events at the given times (the one
+injector of DVL anomalies; ``notes["dvl_anomalies"]``): bottom loss "lostall", a noise burst "noise" on all four beams
+(added noise of dvl_noise_mps sqrt(dvl_burst_factor^2 - 1): the beam noise times dvl_burst_factor in all), the bias
+jump "bias" from its start to the end. GNSS fixes exist only while the IMU is at most gnss_max_depth_m below the
+surface (the antenna above the water). The DVL sees the bottom throughout except in the bottom-loss windows (a flat sea
+floor within range). Frames and units as zennav.sim.sensors.
 """
 from __future__ import annotations
 
@@ -13,9 +16,10 @@ import math
 
 import numpy as np
 
+from ..datasets import dvl_anomalies
 from ..nav.beams import janus_directions
 from ..nav.rotation import euler_to_dcm
-from ..nav.types import NS, Dataset
+from ..nav.types import NS, Dataset, DvlData
 from .scenarios import _gnss_times, make_dataset
 from .sensors import DvlErrors, simulate_depth, simulate_dvl
 
@@ -79,17 +83,27 @@ def make_auv_dataset(duration_s: float = 900.0, seed: int = 0, imu_grade: str = 
     at_surface = h_surface - traj.llh((ds.gnss.t_ns - t0_ns) / NS)[:, 2] <= gnss_max_depth_m
     ds.gnss = ds.gnss.slice(at_surface)
 
-    ss_dvl, ss_depth, ss_bias = np.random.SeedSequence([seed, 3]).spawn(3)
+    ss_dvl, ss_depth, ss_bias, ss_events = np.random.SeedSequence([seed, 3]).spawn(4)
     errors = DvlErrors(
         bias_mps=dvl_bias_mps * np.random.default_rng(ss_bias).standard_normal(4), scale_error=dvl_scale_error,
-        noise_mps=dvl_noise_mps, dropout_prob=dvl_dropout, outlier_prob=dvl_outlier_prob, outlier_mps=dvl_outlier_mps,
-        bottom_loss=parse_windows(dvl_bottom_loss), bursts=parse_windows(dvl_burst), burst_factor=dvl_burst_factor,
-        bias_jump=parse_bias_jump(dvl_bias_jump))
+        noise_mps=dvl_noise_mps, dropout_prob=dvl_dropout, outlier_prob=dvl_outlier_prob, outlier_mps=dvl_outlier_mps)
+    bottom_loss, bursts, jump = parse_windows(dvl_bottom_loss), parse_windows(dvl_burst), parse_bias_jump(dvl_bias_jump)
+    if not dvl_burst_factor >= 1.0:
+        raise ValueError(f"dvl_burst_factor must be >= 1 (the noise of a burst over the DVL's), got {dvl_burst_factor}")
     tilt = math.radians(dvl_tilt_deg)
     B = janus_directions(tilt, dvl_layout)
     C_db = euler_to_dcm(np.asarray(DVL_MOUNT_EULER, dtype=float)).T
-    ds.dvl, true_beams = simulate_dvl(traj, _gnss_times(t0_ns, t_end_ns, dvl_rate_hz), t0_ns, B, C_db,
-                                      DVL_LEVER_B, errors, np.random.default_rng(ss_dvl))
+    dvl, true_beams = simulate_dvl(traj, _gnss_times(t0_ns, t_end_ns, dvl_rate_hz), t0_ns, B, C_db,
+                                   DVL_LEVER_B, errors, np.random.default_rng(ss_dvl))
+    t_s = (dvl.t_ns - t0_ns) / NS
+    timed = ([_event("noise", (0, 1, 2, 3), dvl.t_ns, (t_s >= a) & (t_s < b),
+                     dvl_noise_mps * math.sqrt(dvl_burst_factor**2 - 1.0)) for a, b in bursts]
+             + ([] if jump is None else [_event("bias", (jump[1],), dvl.t_ns, t_s >= jump[0], jump[2])])
+             + [_event("lostall", (0, 1, 2, 3), dvl.t_ns, (t_s >= a) & (t_s < b), 0.0) for a, b in bottom_loss])
+    events = [e for e in timed if e is not None]
+    dvl = dvl_anomalies.apply_events(dvl, events, B, np.random.default_rng(ss_events))
+    assert dvl.beams is not None and dvl.beam_valid is not None
+    ds.dvl = DvlData(dvl.t_ns, np.where(dvl.beam_valid, dvl.beams, np.nan), dvl.beam_valid)
     ds.depth = simulate_depth(traj, _gnss_times(t0_ns, t_end_ns, depth_rate_hz), t0_ns, h_surface, depth_bias_m,
                               depth_noise_m, np.random.default_rng(ss_depth))
     ds.config = ds.config.with_(has_dvl=True, has_depth=True, dvl_tilt=tilt, dvl_layout=dvl_layout,
@@ -97,14 +111,24 @@ def make_auv_dataset(duration_s: float = 900.0, seed: int = 0, imu_grade: str = 
     ds.name = f"sim-auv-{imu_grade}-seed{seed}"
     ds.notes.update(
         dvl_true_beams=true_beams,  # exact beam velocities (N, 4) [m/s] at ds.dvl.t_ns
+        dvl_anomalies=[e.as_dict() for e in events],
         injected={
             "gnss": f"fixes only while the IMU is at most {gnss_max_depth_m} m deep ({int(at_surface.sum())} fixes)",
             "dvl_rate_hz": dvl_rate_hz, "dvl_bias_mps": errors.bias_mps.tolist(), "dvl_scale_error": dvl_scale_error,
             "dvl_noise_mps": dvl_noise_mps, "dvl_dropout": dvl_dropout, "dvl_outlier_prob": dvl_outlier_prob,
-            "dvl_outlier_mps": dvl_outlier_mps, "dvl_bottom_loss_s": [list(w) for w in errors.bottom_loss],
-            "dvl_burst_s": [list(w) for w in errors.bursts], "dvl_burst_factor": dvl_burst_factor,
+            "dvl_outlier_mps": dvl_outlier_mps, "dvl_bottom_loss_s": [list(w) for w in bottom_loss],
+            "dvl_burst_s": [list(w) for w in bursts], "dvl_burst_factor": dvl_burst_factor,
             "dvl_bias_jump": dvl_bias_jump or None, "dvl_tilt_deg": dvl_tilt_deg, "dvl_layout": dvl_layout,
             "dvl_lever_b_m": list(DVL_LEVER_B), "depth_rate_hz": depth_rate_hz, "depth_bias_m": depth_bias_m,
             "depth_noise_m": depth_noise_m, "surface_s": surface_s, "max_depth_m": max_depth_m,
         })
     return ds
+
+
+def _event(kind: str, beams: tuple, t_ns: np.ndarray, rows: np.ndarray,
+           magnitude_mps: float) -> dvl_anomalies.AnomalyEvent | None:
+    """The anomaly event of kind on these beams over the DVL samples where rows holds (None: no sample)."""
+    k = np.flatnonzero(rows)
+    if not len(k):
+        return None
+    return dvl_anomalies.AnomalyEvent(kind, beams, int(t_ns[k[0]]), int(t_ns[k[-1]]), float(magnitude_mps), len(k))

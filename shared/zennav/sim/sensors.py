@@ -153,8 +153,8 @@ def simulate_odometer(traj: Trajectory, t_ns, t0_ns: int, scale_error: float, st
 class DvlErrors:
     """What a simulated DVL injects (simulate_dvl): per-beam constant bias [m/s] (4,), scale-factor error [-], white
     noise 1-sigma [m/s]; per sample and beam: dropout probability, outlier probability and size [m/s] (uniform
-    +-1..2 times it); windows [(start_s, end_s)] of bottom loss (all beams invalid) and of noise bursts (noise times
-    burst_factor); a bias jump (start_s, beam index 0..3, size [m/s]) or None."""
+    +-1..2 times it). Events at given times (bottom loss, noise bursts, a bias jump) are
+    zennav.datasets.dvl_anomalies events (zennav.sim.auv)."""
 
     bias_mps: np.ndarray
     scale_error: float = 0.0
@@ -162,10 +162,6 @@ class DvlErrors:
     dropout_prob: float = 0.0
     outlier_prob: float = 0.0
     outlier_mps: float = 1.0
-    bottom_loss: tuple = ()
-    bursts: tuple = ()
-    burst_factor: float = 10.0
-    bias_jump: tuple | None = None
 
 
 def dvl_velocity(traj: Trajectory, t_s, C_db: np.ndarray, lever_b) -> np.ndarray:
@@ -177,26 +173,18 @@ def dvl_velocity(traj: Trajectory, t_s, C_db: np.ndarray, lever_b) -> np.ndarray
 
 def simulate_dvl(traj: Trajectory, t_ns, t0_ns: int, B: np.ndarray, C_db: np.ndarray, lever_b, errors: DvlErrors,
                  rng: np.random.Generator) -> tuple[DvlData, np.ndarray]:
-    """Janus DVL beams at times t_ns: v_beam = (1 + scale) B v_d + bias (+ jump) + noise, with dropouts, outliers,
-    noise bursts and bottom loss as ``errors`` says (B: beam unit vectors in d (4 x 3), C_db, lever_b [m]). Returns the
-    data and the exact beam velocities (N, 4) [m/s] (the truth the learned compensation targets)."""
+    """Janus DVL beams at times t_ns: v_beam = (1 + scale) B v_d + bias + noise, with dropouts and outliers as
+    ``errors`` says (B: beam unit vectors in d (4 x 3), C_db, lever_b [m]); an invalid beam is NaN. Returns the data
+    and the exact beam velocities (N, 4) [m/s] (the truth the learned compensation targets)."""
     t_ns = np.asarray(t_ns, dtype=np.int64)
     t_s = _seconds(t_ns, t0_ns)
     n = len(t_ns)
     true_beams = dvl_velocity(traj, t_s, C_db, lever_b) @ B.T
     bias = np.tile(np.asarray(errors.bias_mps, dtype=float), (n, 1))
-    if errors.bias_jump is not None:
-        start, beam, size = errors.bias_jump
-        bias[t_s >= start, int(beam)] += size
-    noise_std = np.full(n, errors.noise_mps)
-    for a, b in errors.bursts:
-        noise_std[(t_s >= a) & (t_s < b)] *= errors.burst_factor
-    beams = (1.0 + errors.scale_error) * true_beams + bias + noise_std[:, None] * rng.standard_normal((n, 4))
+    beams = (1.0 + errors.scale_error) * true_beams + bias + errors.noise_mps * rng.standard_normal((n, 4))
     outlier = rng.uniform(size=(n, 4)) < errors.outlier_prob
     beams += outlier * errors.outlier_mps * rng.uniform(1.0, 2.0, (n, 4)) * rng.choice([-1.0, 1.0], (n, 4))
     valid = rng.uniform(size=(n, 4)) >= errors.dropout_prob
-    for a, b in errors.bottom_loss:
-        valid[(t_s >= a) & (t_s < b)] = False
     return DvlData(t_ns, np.where(valid, beams, np.nan), valid), true_beams
 
 

@@ -175,14 +175,18 @@ class DvlTight(_DvlSource):
         return self.fuse(nav, sample)
 
     def fuse(self, nav, sample: DvlSample, correction=None) -> bool:
-        """Fuse the sample's valid beams, correction (4,) [m/s] (None: none) subtracted from them; returns whether
-        it was fused."""
+        """Fuse the sample's valid beams, correction (4,) [m/s] (None: none) subtracted from them and its square
+        added to their noise variance (the learned correction is not exact: its size bounds its error); returns
+        whether it was fused."""
         if nav.align_state == AlignState.COARSE:
             nav.counters["dvl_coarse"] += 1
             return False
         beams, valid = self.beams_of(sample)
+        R_diag = np.full(4, self.R_beam)
         if correction is not None:
-            beams = beams - np.asarray(correction, dtype=float)
+            correction = np.asarray(correction, dtype=float)
+            beams = beams - correction
+            R_diag = R_diag + correction**2  # the model's uncertainty: a compensated beam is as uncertain as its fix
         case = beam_case(valid)
         self.count_case(nav, case)
         if not valid.any():
@@ -190,7 +194,7 @@ class DvlTight(_DvlSource):
         predicted, H = self.model(nav)
         rows = np.flatnonzero(valid)
         z = predicted[rows] - beams[rows]
-        R = np.eye(len(rows)) * self.R_beam
+        R = np.diag(R_diag[rows])
         faults = (f"beams_{case}", "valid_" + "".join("1" if v else "0" for v in valid)) + (
             ("corrected",) if correction is not None else ())
         return nav.update(self, Measurement(int(sample.t_ns), beams[rows], z, H[rows], R, faults=faults,
