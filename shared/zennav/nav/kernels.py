@@ -303,4 +303,9 @@ def compiled() -> types.SimpleNamespace:
         for f in _KERNELS:  # every copy calls the compiled functions
             ns[f.__name__].py_func.__globals__.update(ns)
         _compiled = types.SimpleNamespace(**ns)
+        # load (or compile) run_block now, for the argument types Navigator.run_imu passes: a call on no samples
+        z2, zi = np.zeros((1, 3)), np.zeros(1, dtype=np.int64)
+        _compiled.run_block(zi, z2, z2, 0, 0, 0, 0, 0, 1.0, np.zeros(10), np.zeros(6), np.zeros(0), -1, -1,
+                            np.zeros(6), np.zeros(7), np.eye(N_INS), np.zeros(N_INS), np.zeros(0), -1.0, -1.0, 0.0,
+                            np.zeros((1, 10)), z2)
     return _compiled

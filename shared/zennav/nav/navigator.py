@@ -211,10 +211,11 @@ class Navigator:
         P = np.ascontiguousarray(self.kf.P)
         sg0, sa0 = (-1, -1) if self._scale is None else (self._scale[0].start, self._scale[1].start)
         run_block = kernels.compiled().run_block if jit else kernels.run_block
-        k = run_block(t_ns, dtheta_b, dvel_b, k0, k1, self.t_ns, stop_ns,
-                      gp.valid_t_ns if gp.gnss_state is GnssState.VALID else -1, self.config.outage_timeout_s,
-                      nav, np.array(self.gyro_bias + self.accel_bias), self._aug_x, sg0, sa0, prev, cov, P,
-                      self._q_psd, self._aug_decay, *self._bias_decay, self.config.cov_interval_s, out_nav, out_std)
+        k = run_block(t_ns, dtheta_b, dvel_b, int(k0), int(k1), int(self.t_ns), int(stop_ns),
+                      int(gp.valid_t_ns) if gp.gnss_state is GnssState.VALID else -1,
+                      float(self.config.outage_timeout_s), nav, np.array(self.gyro_bias + self.accel_bias),
+                      self._aug_x, sg0, sa0, prev, cov, P, self._q_psd, self._aug_decay, *self._bias_decay,
+                      float(self.config.cov_interval_s), out_nav, out_std)
         if k == k0:
             return k0
         t_before = int(t_ns[k - 2]) if k - 1 > k0 else self.t_ns
