@@ -9,8 +9,10 @@ from __future__ import annotations
 import math
 import os
 import time
+from bisect import bisect_right
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from itertools import repeat
 
 import numpy as np
 
@@ -131,12 +133,14 @@ def sensor_events(
         queued += zip(before.tolist(), t[idx].tolist(), [rank] * len(idx), [kind] * len(idx), idx.tolist())
     queued.sort()
     events: list[tuple[str, int]] = []
-    j, nq = 0, len(queued)
-    for i, k in enumerate(range(k0, k1)):
-        while j < nq and queued[j][0] <= i:
-            events.append((queued[j][3], queued[j][4]))
-            j += 1
-        events.append(("imu", k))
+    done = 0  # IMU positions before this one are in events
+    for pos, _, _, kind_q, k_q in queued:  # each before the IMU sample at its position
+        if pos >= k1 - k0:
+            break
+        events.extend(zip(repeat("imu"), range(k0 + done, k0 + pos)))
+        done = max(done, pos)
+        events.append((kind_q, k_q))
+    events.extend(zip(repeat("imu"), range(k0 + done, k1)))
     return windows, events
 
 
@@ -176,13 +180,13 @@ def run_replay(
     imu, gnss = ds.imu, ds.gnss
     windows, events = sensor_events(ds, outages, outage_every)
     streams = aid_streams(ds, nav)
-    n = sum(1 for kind, _ in events if kind == "imu")
+    kinds = [kind for kind, _ in events]
+    n = kinds.count("imu")
     t_out = np.empty(n, dtype=np.int64)
     out = np.empty((n, 10))
     std = np.empty((n, 3))
     outage = np.zeros(n, dtype=bool)
     reports: list[AidReport] = []
-    dtheta, dvel = imu.dtheta.tolist(), imu.dvel.tolist()
     t_list = imu.t_ns.tolist()
     aid_data = {kind: getattr(ds, kind) for kind in AID_STREAMS}
     held: list[tuple[str, int]] = []  # aid samples waiting for the IMU sample that reaches their time
@@ -199,10 +203,10 @@ def run_replay(
         block_args = (np.ascontiguousarray(imu.t_ns, dtype=np.int64), np.ascontiguousarray(imu.dtheta, dtype=float),
                       np.ascontiguousarray(imu.dvel, dtype=float))
         rows, row_std = np.empty((len(imu), 10)), np.empty((len(imu), 3))
-        # index of the next event that is not an IMU sample, for each event
-        ends = [len(events)] * len(events)
-        for j in range(len(events) - 2, -1, -1):
-            ends[j] = j + 1 if events[j + 1][0] != "imu" else ends[j + 1]
+        others = [j for j, kind in enumerate(kinds) if kind != "imu"] + [len(events)]  # events that are not IMU
+        dtheta, dvel = block_args[1], block_args[2]  # rows of the samples that go step by step
+    else:
+        dtheta, dvel = imu.dtheta.tolist(), imu.dvel.tolist()
     i = 0
     e = -1
     wall0 = time.perf_counter()
@@ -217,8 +221,9 @@ def run_replay(
             continue
         if blocks and not held:
             due = epoch_due() if epoch_due is not None else None
-            k_end = nav.run_imu(*block_args, k, events[ends[e] - 1][1] + 1, 2**62 if due is None else due, rows,
-                                row_std, loop == "compiled")
+            k_last = events[others[bisect_right(others, e)] - 1][1]  # the last IMU sample before the next event
+            k_end = nav.run_imu(*block_args, k, k_last + 1, 2**62 if due is None else due, rows, row_std,
+                                loop == "compiled")
             if k_end > k:
                 n_run = k_end - k
                 t_out[i:i + n_run] = block_args[0][k:k_end]
