@@ -151,8 +151,8 @@ def write_solution(out_dir: Path, res: ReplayResult) -> None:
         [res.t_ns / NS, np.degrees(res.llh[:, :2]), res.llh[:, 2], res.v_n, np.degrees(euler), res.std_pos_ned,
          res.outage.astype(float)]
     )
-    fmt = ",".join(["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%d"])
-    (out_dir / "nav.csv").write_text(header + "\n" + kfgins.format_lines(fmt, cols.tolist()), encoding="utf-8")
+    np.savetxt(out_dir / "nav.csv", cols, delimiter=",", header=header, comments="",
+               fmt=["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%d"])
 
 
 UNDERWATER_DEPTH_M = 0.5  # [m] the truth deeper than this below the water surface is under water (no GNSS)

@@ -142,25 +142,12 @@ def _sow_text(t_ns, week: int) -> list[str]:
     return [f"{s}.{f:09d}" for s, f in zip(sec.tolist(), frac.tolist())]
 
 
-def format_lines(fmt: str, rows: list) -> str:
-    """One line fmt % row per row (a list of values), as one string; a whole chunk of rows per % operation (the
-    same text as a format per row, in about two thirds of the time)."""
-    out = []
-    for i in range(0, len(rows), _CHUNK):
-        part = rows[i:i + _CHUNK]
-        out.append((fmt + "\n") * len(part) % tuple(x for row in part for x in row))
-    return "".join(out)
-
-
-_CHUNK = 2048  # rows per % operation of format_lines
-
-
 def _write_rows(path, t_ns, week: int, columns: np.ndarray, fmt: str, lead: list[str] | None = None) -> None:
     """One line per row: [lead] sow values, values formatted with ``fmt`` (one %-spec per column)."""
     sow = _sow_text(t_ns, week)
     lead = lead or [""] * len(sow)
-    rows = [[a, s, *r] for a, s, r in zip(lead, sow, np.asarray(columns, dtype=float).tolist())]
-    Path(path).write_text(format_lines("%s%s " + fmt, rows), encoding="utf-8")
+    body = [fmt % tuple(row) for row in np.asarray(columns, dtype=float).tolist()]
+    Path(path).write_text("".join(f"{a}{s} {b}\n" for a, s, b in zip(lead, sow, body)), encoding="utf-8")
 
 
 def write_imu(path, imu: ImuData, week: int = 0) -> None:
