@@ -164,7 +164,8 @@ def run_replay(
     the bus carries, sensor_events) and its odometer samples from ``aid_streams`` (replay only: the bus has no
     odometer stream yet): each goes to the engine's sources that take it after the first IMU sample at or after its
     time, outages or not, before that epoch's solution (the odometer's first, then the DVL's and depth's in time
-    order; zennav.nodes.ins hands the bus's over the same way).
+    order; zennav.nodes.ins hands the bus's over the same way). A compensator of another target than "drift" runs
+    the engine without the drift target's shadow INSs (config.learn_drift: the samples it learns are the same).
 
     loop: how the IMU samples between two events run: "step" (on_imu, sample by sample), "compiled" (the stretches
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
@@ -172,8 +173,9 @@ def run_replay(
     run needs no step-wise hand-over (no compensator, no odometer stream, no smoothing); epoch_due() (optional) says
     from which IMU time on_epoch must see the epochs (None: every one); without it on_epoch sees every epoch and the
     run goes step by step; in the block loop on_epoch also sees the last epoch of each stretch."""
+    target = getattr(compensator, "target", None)
     config = ds.config if compensator is None else ds.config.with_(
-        learning=True, dvl_learned=getattr(compensator, "target", None) == "dvl_beam")
+        learning=True, dvl_learned=target == "dvl_beam", learn_drift=target in (None, "drift"))
     nav = navigator or Navigator(config, ds.initial)
     rec = Recorder() if smoothing else None
     nav.recorder = rec

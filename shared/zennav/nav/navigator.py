@@ -133,7 +133,7 @@ class Navigator:
         self._imu_sample: tuple[list, list, float] = ([0.0] * 3, [0.0] * 3, 1.0)  # raw increments, interval [s]
         self._pending: list[GnssFix] = []
         self._reports: list[AidReport] = []
-        self.tap = LearningTap(config.learn_horizon_s) if config.learning else None
+        self.tap = LearningTap(config.learn_horizon_s, drift=config.learn_drift) if config.learning else None
         self._dx_since_fix = np.zeros(N_STATES)  # corrections of the GNSS fix being fused
         self.last_dx = np.zeros(N_STATES)  # correction of the last fused update
         self._learn_start_t_ns = self.t_ns + int(config.learn_after_s * NS)
