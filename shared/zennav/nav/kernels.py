@@ -157,12 +157,9 @@ def error_model(F, lat, h, vn, ve, vd, C, fx, fy, fz, gb, ab) -> None:
     F[6, 4], F[7, 3], F[8, 4] = 1 / rnh, -1 / rmh, -t / rnh
     # -[omega_in_n x]
     F[6, 7], F[6, 8], F[7, 6], F[7, 8], F[8, 6], F[8, 7] = od, -oe, -od, on, oe, -on
-    for i in range(3):
-        for j in range(3):
-            F[3 + i, 12 + j] = -C[i, j]  # -C_nb (accelerometer bias)
-            F[6 + i, 9 + j] = C[i, j]  # C_nb (gyro bias)
-        F[9 + i, 9 + i] = gb
-        F[12 + i, 12 + i] = ab
+    F[3:6, 12:15] = -C  # accelerometer bias
+    F[6:9, 9:12] = C  # gyro bias
+    F[9, 9], F[10, 10], F[11, 11], F[12, 12], F[13, 13], F[14, 14] = gb, gb, gb, ab, ab, ab
 
 
 def scale_factor_coupling(F, C, fx, fy, fz, ox, oy, oz, sg0, sa0) -> None:
@@ -184,11 +181,9 @@ def discretize(F, q_psd, dt):
     Phi = Fdt @ Fdt
     Phi *= 0.5
     Phi += Fdt
-    for i in range(n):
-        Phi[i, i] += 1.0
+    Phi.ravel()[:: n + 1] += 1.0
     Qd = (Phi * q_psd) @ Phi.T  # Phi diag(q) Phi'
-    for i in range(n):
-        Qd[i, i] += q_psd[i]
+    Qd.ravel()[:: n + 1] += q_psd
     Qd *= 0.5 * dt
     return Phi, Qd
 
@@ -207,8 +202,7 @@ def transition(lat, h, vn, ve, vd, q0, q1, q2, q3, fx, fy, fz, ox, oy, oz, q_psd
     F = np.zeros((n, n))
     C = quat_dcm(q0, q1, q2, q3)
     error_model(F, lat, h, vn, ve, vd, C, fx, fy, fz, gb, ab)
-    for i in range(aug_decay.shape[0]):
-        F[N_INS + i, N_INS + i] = aug_decay[i]
+    F.ravel()[N_INS * (n + 1):: n + 1] = aug_decay
     if sg0 >= 0:
         scale_factor_coupling(F, C, fx, fy, fz, ox, oy, oz, sg0, sa0)
     return discretize(F, q_psd, dt)
