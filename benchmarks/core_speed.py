@@ -1,74 +1,178 @@
-"""Speed of the navigation core (strapdown + 15-state ESKF + GNSS updates) in one process.
+"""Speed of the navigation core, side by side in one run (issue 17's figures; medians of --repeats runs).
 
-Prints, side by side and measured in the same run:
-- epochs per second and real-time factor over a simulated 30 min car drive at 200 Hz with 1 Hz GNSS,
-  median of --repeats runs, for covariance propagation every IMU sample and every --cov-interval seconds;
-- the accuracy of both settings on the same drive (with a 60 s outage) and on the rtklibexplorer drive
-  (with 30 s outages every 90 s), to show that the lower propagation rate leaves the accuracy unchanged.
+- loop: run_replay over a simulated car drive (--minutes at 200 Hz, 1 Hz GNSS, a 60 s outage in the middle), the
+  engine only (no file I/O): compiled block loop (zennav.nav.kernels via Navigator.run_imu) and step by step
+  (on_imu, the services' Python path); CPU seconds of this process and real-time factors, and the largest
+  difference between the two solutions;
+- command: ``zennav replay`` as a whole command (start-up, reading the KF-GINS text files, writing nav.txt, nav.csv,
+  metrics) on the same drive written as KF-GINS files, by default (compiled from JIT_MIN_S of data on) and with
+  ZENNAV_JIT=0; wall and CPU seconds of the child process;
+- learning: ``zennav replay sim:car --compensation anfis|elman`` (default target) over --learn-minutes, whole
+  command;
+- pyins (``python-ins``, a Python INS with numba, bench extra) on the first --pyins-minutes of the same drive: its
+  feedback filter (run_feedback_filter, position fixes), CPU seconds and real-time factor;
+- KF-GINS (--kf-gins PATH, the binary) on the same KF-GINS files, wall and CPU seconds.
 
-    .venv/bin/python benchmarks/core_speed.py [--minutes 30] [--repeats 3] [--profile]
+    .venv/bin/python benchmarks/core_speed.py [--minutes 30] [--repeats 3] [--learn-minutes 5] [--kf-gins PATH]
+        [--profile loop|command]
 """
 from __future__ import annotations
 
 import argparse
 import cProfile
+import logging
+import os
 import pstats
+import resource
 import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
 
-from zennav.datasets.errors import DataError
-from zennav.datasets.registry import load_dataset
-from zennav.metrics import evaluate
+import numpy as np
+
+from zennav.datasets import kfgins
+from zennav.nav.types import NS
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
 
+ZENNAV = str(Path(sys.executable).parent / "zennav")
 
-def run(ds, cov_interval_s: float, **replay_kw):
-    ds.config = ds.config.with_(cov_interval_s=cov_interval_s)
-    res = run_replay(ds, **replay_kw)
-    return res, evaluate(ds, res)
+
+def cpu_of(fn, *args, **kw):
+    """(result, CPU seconds of this process) of fn(*args, **kw)."""
+    c0 = time.process_time()
+    res = fn(*args, **kw)
+    return res, time.process_time() - c0
+
+
+def child(cmd: list[str], env: dict | None = None, cwd: str | None = None) -> tuple[float, float]:
+    """(wall, CPU) seconds of a child process (CPU: user + system of the children, from getrusage)."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    w0 = time.perf_counter()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env={**os.environ, **(env or {})}, cwd=cwd)
+    wall = time.perf_counter() - w0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+
+
+def median_pair(runs):
+    return statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs)
+
+
+def line(name: str, data_s: float, wall: float | None, cpu: float, note: str = "") -> None:
+    w = f"{wall:9.2f}{data_s / wall:10.0f}x" if wall is not None else f"{'':9}{'':11}"
+    print(f"{name:<44}{w}{cpu:9.2f}{data_s / cpu:10.0f}x  {note}")
+
+
+def pyins_run(ds, seconds: float) -> tuple[float, float]:
+    """CPU seconds of pyins's feedback filter over the first `seconds` of ds (position fixes of 0.5 m), and its
+    horizontal RMS error [m] against the truth."""
+    import pandas as pd
+    from pyins import filters, measurements
+
+    from zennav.nav import earth
+
+    t0 = int(ds.initial.t_ns)
+    imu = ds.imu.slice((ds.imu.t_ns > t0) & (ds.imu.t_ns <= t0 + int(seconds * NS)))
+    t = (imu.t_ns - t0) / NS
+    inc = pd.DataFrame({"dt": np.diff(np.concatenate([[0.0], t]))}, index=t)
+    for i, ax in enumerate("xyz"):
+        inc[f"theta_{ax}"] = imu.dtheta[:, i]
+        inc[f"dv_{ax}"] = imu.dvel[:, i]
+    g = ds.gnss.slice((ds.gnss.t_ns > t0) & (ds.gnss.t_ns <= imu.t_ns[-1]))
+    pos = pd.DataFrame({"lat": np.degrees(g.llh[:, 0]), "lon": np.degrees(g.llh[:, 1]), "alt": g.llh[:, 2]},
+                       index=(g.t_ns - t0) / NS)
+    init = ds.initial
+    pva = pd.Series({"lat": np.degrees(init.llh[0]), "lon": np.degrees(init.llh[1]), "alt": init.llh[2],
+                     "VN": init.v_n[0], "VE": init.v_n[1], "VD": init.v_n[2], "roll": np.degrees(init.euler[0]),
+                     "pitch": np.degrees(init.euler[1]), "heading": np.degrees(init.euler[2])}, name=0.0)
+    meas = [measurements.Position(pos, 0.5, np.asarray(ds.config.lever_arm_b))]
+    res, cpu = cpu_of(filters.run_feedback_filter, pva, 1.0, 0.1, 1.0, 1.0, inc, measurements=meas, time_step=0.05)
+    traj = res.trajectory
+    tt = t0 + (np.asarray(traj.index) * NS).astype(np.int64)
+    truth = np.column_stack([np.interp(tt, ds.truth.t_ns, ds.truth.llh[:, i]) for i in range(3)])
+    est = np.column_stack([np.radians(traj.lat), np.radians(traj.lon), traj.alt])
+    d = earth.llh_to_ned(est, truth[0]) - earth.llh_to_ned(truth, truth[0])
+    return cpu, float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2)))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--minutes", type=float, default=30.0)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--cov-interval", type=float, default=0.05, help="lower covariance propagation interval [s]")
-    ap.add_argument("--profile", action="store_true", help="print the top of a cProfile of one run")
+    ap.add_argument("--learn-minutes", type=float, default=5.0, help="drive of the learning runs (0: skip)")
+    ap.add_argument("--pyins-minutes", type=float, default=2.0, help="pyins's share of the drive (0: skip)")
+    ap.add_argument("--kf-gins", type=Path, default=None, help="a KF-GINS binary to run on the same files")
+    ap.add_argument("--profile", choices=("loop", "command"), default=None,
+                    help="print the top of a cProfile of one compiled loop, or of one whole command in-process")
     args = ap.parse_args()
+    logging.basicConfig(level=logging.ERROR)  # the engine's outage warnings
 
-    ds = make_dataset("car", duration_s=args.minutes * 60.0, imu_rate_hz=200.0, gnss_rate_hz=1.0, seed=0)
-    settings = {"every sample": 0.0, f"every {args.cov_interval:g} s": args.cov_interval}
-    mid_s = args.minutes * 30.0
-    print(f"simulated car, {args.minutes:g} min, 200 Hz IMU, 1 Hz GNSS, 60 s outage at {mid_s:g} s; "
-          f"{args.repeats} runs each")
-    print(f"{'covariance propagation':<24}{'epochs/s (median)':>20}{'real-time (median)':>20}"
-          f"{'horiz RMS m':>14}{'outage max m':>14}")
-    for name, cov in settings.items():
-        speeds, rtfs = [], []
+    data_s = args.minutes * 60.0
+    ds = make_dataset("car", duration_s=data_s, imu_rate_hz=200.0, gnss_rate_hz=1.0, seed=0)
+    outages = [(data_s / 2, 60.0)]
+    print(f"simulated car, {args.minutes:g} min, 200 Hz IMU, 1 Hz GNSS, 60 s outage at {data_s / 2:g} s; medians of "
+          f"{args.repeats} runs; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"{'':44}{'wall s':>9}{'real-time':>11}{'CPU s':>9}{'real-time':>11}")
+    run_replay(ds, outages=outages, loop="compiled")  # compiles the kernels where their cache is empty
+    loops = {}
+    for loop in ("compiled", "step"):
+        runs = []
         for _ in range(args.repeats):
-            res, m = run(ds, cov, outages=[(mid_s, 60.0)])
-            speeds.append(m["epochs_per_s"])
-            rtfs.append(m["realtime_factor"])
-        print(f"{name:<24}{statistics.median(speeds):>20,.0f}{statistics.median(rtfs):>19.1f}x"
-              f"{m['horizontal_rms_m']:>14.3f}{m['outage_max_horizontal_max_m']:>14.3f}")
+            res, cpu = cpu_of(run_replay, ds, outages=outages, loop=loop)
+            runs.append((res.wall_s, cpu))
+            loops[loop] = res
+        wall, cpu = median_pair(runs)
+        line(f"loop, {loop} (target >= 3000x)" if loop == "compiled" else "loop, step by step (services' path)",
+             data_s, wall, cpu)
+    a, b = loops["compiled"], loops["step"]
+    diff = max(float(np.max(np.abs(x - y) / np.maximum(np.abs(y), 1e-300))) for x, y in
+               ((a.llh, b.llh), (a.v_n, b.v_n), (a.q_nb, b.q_nb), (a.std_pos_ned, b.std_pos_ned)))
+    print(f"{'':44}compiled vs step: largest relative difference {diff:.1e}")
 
-    try:
-        real = load_dataset("rtklibexplorer")
-    except DataError as e:
-        print(f"rtklibexplorer drive not available ({e})")
-    else:
-        print("\nrtklibexplorer drive (100 Hz), 30 s outages every 90 s")
-        print(f"{'covariance propagation':<24}{'horiz RMS m':>14}{'outage max-drift RMS m':>24}{'real-time':>12}")
-        for name, cov in settings.items():
-            res, m = run(real, cov, outage_every=(90.0, 30.0, 60.0))
-            print(f"{name:<24}{m['horizontal_rms_m']:>14.3f}{m['outage_max_horizontal_rms_m']:>24.3f}"
-                  f"{m['realtime_factor']:>11.1f}x")
+    with tempfile.TemporaryDirectory(prefix="core_speed_") as tmp:
+        yaml_path = kfgins.write_dataset(ds, Path(tmp) / "files", "car")
+        for name, env in (("command, default (target >= 500x)", {}), ("command, ZENNAV_JIT=0", {"ZENNAV_JIT": "0"})):
+            cmd = [ZENNAV, "replay", str(yaml_path), "--outage", f"{data_s / 2:g}:60", "--out", str(Path(tmp) / "out"),
+                   "-q"]
+            wall, cpu = median_pair([child(cmd, env) for _ in range(args.repeats)])
+            line(name, data_s, wall, cpu, "KF-GINS text files in, nav.txt/nav.csv out")
+        if args.kf_gins is not None:
+            wall, cpu = median_pair([child([str(args.kf_gins), str(yaml_path)], cwd=str(Path(tmp) / "files"))
+                                     for _ in range(args.repeats)])
+            line("KF-GINS (C++), same files, no outage", data_s, wall, cpu)
+        if args.profile == "command":
+            from zennav.replay_cli import replay_dataset
 
-    if args.profile:
-        ds.config = ds.config.with_(cov_interval_s=args.cov_interval)
+            prof = cProfile.Profile()
+            prof.runcall(replay_dataset, str(yaml_path), outages, None, Path(tmp) / "prof", False, quiet=True)
+            pstats.Stats(prof).sort_stats("tottime").print_stats(15)
+
+    if args.learn_minutes > 0:
+        learn_s = args.learn_minutes * 60.0
+        for model in ("anfis", "elman"):
+            cmd = [ZENNAV, "replay", "sim:car", "-o", f"duration_s={learn_s:g}", "--outage", f"{learn_s / 2:g}:60",
+                   "--compensation", model, "-q"]
+            wall, cpu = median_pair([child(cmd) for _ in range(args.repeats)])
+            line(f"learning, {model} (target >= 300x)", learn_s, wall, cpu, f"{args.learn_minutes:g} min sim:car")
+
+    if args.pyins_minutes > 0:
+        try:
+            import pyins  # noqa: F401
+        except ImportError:
+            print("pyins (python-ins) not installed: pip install -e '.[bench]'")
+        else:
+            cpu, rms = pyins_run(ds, args.pyins_minutes * 60.0)
+            line("pyins feedback filter, step 0.05 s", args.pyins_minutes * 60.0, None, cpu,
+                 f"first {args.pyins_minutes:g} min, horizontal RMS {rms:.2f} m")
+
+    if args.profile == "loop":
         prof = cProfile.Profile()
-        prof.runcall(run_replay, ds)
-        pstats.Stats(prof).sort_stats("tottime").print_stats(12)
+        prof.runcall(run_replay, ds, outages=outages, loop="compiled")
+        pstats.Stats(prof).sort_stats("tottime").print_stats(15)
 
 
 if __name__ == "__main__":

@@ -41,7 +41,8 @@ marks = {}
 def mark(name):
     if name not in marks:
         marks[name] = (time.monotonic(), time.process_time())
-_load, _init, _on_imu = _reg.load_dataset, _nv.Navigator.__init__, _nv.Navigator.on_imu
+_load, _init, _on_imu, _run_imu = (_reg.load_dataset, _nv.Navigator.__init__, _nv.Navigator.on_imu,
+                                   _nv.Navigator.run_imu)
 def load(*a, **k):
     ds = _load(*a, **k)
     mark("dataset_loaded")
@@ -54,7 +55,14 @@ def on_imu(self, *a, **k):
     mark("first_sample")
     report()
     os._exit(0)  # start-up measured: the rest of the replay is the core's speed, not this benchmark's
-_reg.load_dataset, _nv.Navigator.__init__, _nv.Navigator.on_imu = load, init, on_imu
+def run_imu(self, *a, **k):
+    end = _run_imu(self, *a, **k)
+    if end > a[3]:  # the compiled block loop processed its first samples
+        mark("first_sample")
+        report()
+        os._exit(0)
+    return end
+_reg.load_dataset, _nv.Navigator.__init__, _nv.Navigator.on_imu, _nv.Navigator.run_imu = load, init, on_imu, run_imu
 heavy = %r
 def report():
     marks["loaded"] = sorted(m for m in heavy if m in sys.modules)

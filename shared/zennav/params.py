@@ -29,8 +29,9 @@ ATTITUDE_PARAMS = DEPLOY_DIR / "attitude.yaml"
 SENSOR_FIELDS = ("imu_noise", "lever_arm_b", "dvl_tilt", "dvl_layout", "dvl_mount_euler", "dvl_lever_b",
                  "depth_surface_h_m", "has_dvl", "has_depth", "start_t_ns",
                  "end_t_ns")  # travel with the data (stream_start)
-# set by the ins's --learning / replay's --compensation (dvl_learned: with the dvl_beam target)
-SERVICE_FIELDS = ("learning", "dvl_learned")
+# set by the ins's --learning / replay's --compensation (dvl_learned: with the dvl_beam target; learn_drift: replay's
+# compensator of another target turns the drift target's shadow INSs off)
+SERVICE_FIELDS = ("learning", "dvl_learned", "learn_drift")
 
 
 class ParamError(ValueError):

@@ -87,7 +87,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
 
         compensator = make_compensator(compensation, target, seed)
     res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
-                     smoothing=smooth)
+                     smoothing=smooth, epoch_due=recorder.due_ns)
     progress.close()
     recorder.finish(ds, sensor_events(ds, list(outages), every)[1] if mcap is not None else [], res.reports)
     metrics = evaluate(ds, res)

@@ -43,6 +43,10 @@ class RunRecorder:
 
             self.rec = McapRecorder(mcap, "json")
 
+    def due_ns(self) -> int | None:
+        """The first IMU time [ns] whose epoch on_epoch must see (run_replay's epoch_due); None: every epoch (MCAP)."""
+        return self.next_bias_ns if self.rec is None else None
+
     def on_epoch(self, nav) -> None:
         t = nav.t_ns
         if t >= self.next_bias_ns:

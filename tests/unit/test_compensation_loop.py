@@ -9,6 +9,7 @@ from zennav.learn.learner import ElmanOnline
 from zennav.learn.loop import InProcessLoop, make_compensator
 from zennav.learn.settings import LearnSettings
 from zennav.nav.learning import BODY_FEATURES, DRIFT_FEATURES, RATE_FEATURES, TARGETS
+from zennav.nav.navigator import Navigator
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
 
@@ -232,3 +233,16 @@ def test_body_features_are_the_time_weighted_mean_and_spread_of_the_rates():
     feats = win.body_features()
     assert feats.shape == (len(BODY_FEATURES),)
     np.testing.assert_allclose(feats, np.concatenate([mean, std]), rtol=1e-9, atol=1e-12)
+
+
+def test_a_compensator_of_another_target_runs_without_the_drift_shadows(drive):
+    """run_replay turns the drift target's shadow INSs off for a body_velocity compensator: the same solution."""
+    engines: list = []
+    res = run_replay(drive, outages=[(180.0, 30.0)], compensator=make_compensator("elman", "body_velocity"),
+                     on_epoch=engines.append)
+    with_shadows = run_replay(drive, outages=[(180.0, 30.0)], compensator=make_compensator("elman", "body_velocity"),
+                              navigator=Navigator(drive.config.with_(learning=True), drive.initial))
+    assert np.array_equal(res.llh, with_shadows.llh) and np.array_equal(res.q_nb, with_shadows.q_nb)
+    assert any(r.source == "learned_body_velocity" and r.fused for r in res.reports)
+    tap = engines[-1].tap
+    assert tap is not None and not tap.drift and tap.shadows == []

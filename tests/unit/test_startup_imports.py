@@ -29,3 +29,12 @@ def test_a_plain_replay_does_not_import_the_learning_loop():
     assert _modules_after(code, names) == []
     with_loop = code.replace("'-q']", "'-q', '--compensation', 'anfis']")
     assert _modules_after(with_loop, names)[:1] == ["zennav.learn.loop"]  # the check sees it when it is used
+
+
+def test_the_services_engine_and_the_cli_do_not_import_numba():
+    """numba (about 100 MB resident, a second to load) only for zennav replay's compiled loop: the ins node and the
+    step-wise engine run the kernels as Python, `zennav --help` loads neither."""
+    code = ("import zennav.nodes.ins, zennav.cli\nfrom zennav.sim.scenarios import make_dataset\n"
+            "from zennav.replay import run_replay\nrun_replay(make_dataset('car', duration_s=5.0), loop='step')")
+    assert _modules_after(code, ("numba", "llvmlite")) == []
+    assert _modules_after(code.replace("loop='step'", "loop='compiled'"), ("numba",)) == ["numba"]  # the check sees it

@@ -40,10 +40,17 @@ def radii(lat: Real) -> tuple[Real, Real]:
     return A * (1.0 - E2) / (w * w * w), A / w
 
 
-def gravity_sin2(s2, h):
-    """Normal gravity [m/s^2] from sin^2(latitude) s2 and height h [m]; floats or arrays."""
-    g_surface = GAMMA_E * (1.0 + _K_SOMIGLIANA * s2) / (1.0 - E2 * s2) ** 0.5
+def gravity_sw(s2, sw, h):
+    """Normal gravity [m/s^2] from sin^2(latitude) s2, sw = sqrt(1 - E2 s2) and height h [m]; floats or arrays
+    (arithmetic only: the compiled navigation kernels call it, zennav.nav.kernels)."""
+    g_surface = GAMMA_E * (1.0 + _K_SOMIGLIANA * s2) / sw
     return g_surface * (1.0 - 2.0 / A * (1.0 + F + _M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * h * h)
+
+
+def gravity_sin2(s2, h):
+    """Normal gravity [m/s^2] from sin^2(latitude) s2 and height h [m]; floats or arrays. The square root is sqrt
+    (not ** 0.5, libm's pow, which differs from the compiled kernels' sqrt in the last bit of some values)."""
+    return gravity_sw(s2, _xp(s2).sqrt(1.0 - E2 * s2), h)
 
 
 def gravity(lat: Real, h: Real | float) -> Real:

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import gammaincinv
 
-from . import earth
+from . import kernels
 from .types import ImuNoise, InitialState, NavConfig
 
 N_STATES = 15
@@ -41,62 +41,14 @@ def chi2_quantile(p: float, dof: int) -> float:
     return float(2.0 * gammaincinv(dof / 2.0, p))
 
 
-# Positions of the entries of F that error_model fills, in the order it lists their values (row, column).
-_F_ENTRIES = (
-    [(0, 0), (0, 2), (1, 0), (1, 1), (1, 2)]  # F_rr
-    + [(0, 3), (1, 4), (2, 5)]  # I
-    + [(3, 0), (3, 2), (4, 0), (4, 2), (5, 0), (5, 2)]  # F_vr
-    + [(3 + i, 3 + j) for i in range(3) for j in range(3)]  # F_vv
-    + [(3, 7), (3, 8), (4, 6), (4, 8), (5, 6), (5, 7)]  # [f_n x]
-    + [(3 + i, 12 + j) for i in range(3) for j in range(3)]  # -C_nb
-    + [(6, 0), (6, 2), (7, 2), (8, 0), (8, 2)]  # F_pr
-    + [(6, 4), (7, 3), (8, 4)]  # F_pv
-    + [(6, 7), (6, 8), (7, 6), (7, 8), (8, 6), (8, 7)]  # -[omega_in_n x]
-    + [(6 + i, 9 + j) for i in range(3) for j in range(3)]  # C_nb
-    + [(9 + i, 9 + i) for i in range(6)]  # -1/tau of the bias Gauss-Markov processes
-)
-_F_FLAT = np.array([i * N_STATES + j for i, j in _F_ENTRIES])
-
-
 def error_model(lat: float, h: float, v_n, C_nb: np.ndarray, f_b, noise: ImuNoise) -> np.ndarray:
     """Continuous-time error dynamics matrix F (15x15) at latitude lat [rad], height h [m],
-    velocity v_n [m/s], attitude C_nb and specific force f_b [m/s^2, body].
-
-    Scalar float arithmetic and one indexed assignment (this runs every covariance step of the live ins)."""
-    vn, ve, vd = v_n
-    s, c = math.sin(lat), math.cos(lat)
-    t = s / c
-    sw = math.sqrt(1.0 - earth.E2 * s * s)
-    r_n = earth.A / sw
-    r_m = r_n * (1.0 - earth.E2) / (sw * sw)
-    rmh, rnh = r_m + h, r_n + h
-    rmh2, rnh2, rmnc2 = rmh * rmh, rnh * rnh, rmh * rnh * c * c
-    w = earth.OMEGA_IE
-    g = earth.gravity_sin2(s * s, h)
-    (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = C_nb.tolist()
-    fx, fy, fz = (float(x) for x in f_b)
-    fn, fe, fd = (c00 * fx + c01 * fy + c02 * fz, c10 * fx + c11 * fy + c12 * fz, c20 * fx + c21 * fy + c22 * fz)
-    # omega_in_n = omega_ie_n + omega_en_n
-    on, oe, od = w * c + ve / rnh, -vn / rmh, -w * s - ve * t / rnh
-    gb, ab = -1.0 / noise.gyro_bias_tau, -1.0 / noise.accel_bias_tau
+    velocity v_n [m/s], attitude C_nb and specific force f_b [m/s^2, body] (zennav.nav.kernels.error_model)."""
     F = np.zeros((N_STATES, N_STATES))
-    F.ravel()[_F_FLAT] = [
-        -vd / rmh, vn / rmh, ve * t / rnh, -(vd + vn * t) / rnh, ve / rnh,
-        1.0, 1.0, 1.0,
-        -2 * ve * w * c / rmh - ve * ve / rmnc2, vn * vd / rmh2 - ve * ve * t / rnh2,
-        2 * w * (vn * c - vd * s) / rmh + vn * ve / rmnc2, (ve * vd + vn * ve * t) / rnh2,
-        2 * w * ve * s / rmh, -ve * ve / rnh2 - vn * vn / rmh2 + 2 * g / (math.sqrt(r_m * r_n) + h),
-        vd / rmh, -2 * (w * s + ve * t / rnh), vn / rmh,
-        2 * w * s + ve * t / rnh, (vd + vn * t) / rnh, 2 * w * c + ve / rnh,
-        -2 * vn / rmh, -2 * (w * c + ve / rnh), 0.0,
-        -fd, fe, fd, -fn, -fe, fn,
-        -c00, -c01, -c02, -c10, -c11, -c12, -c20, -c21, -c22,
-        -w * s / rmh, ve / rnh2, -vn / rmh2, -w * c / rmh - ve / rmnc2, -ve * t / rnh2,
-        1 / rnh, -1 / rmh, -t / rnh,
-        od, -oe, -od, on, oe, -on,
-        c00, c01, c02, c10, c11, c12, c20, c21, c22,
-        gb, gb, gb, ab, ab, ab,
-    ]
+    vn, ve, vd = (float(x) for x in v_n)
+    fx, fy, fz = (float(x) for x in f_b)
+    kernels.error_model(F, lat, h, vn, ve, vd, np.asarray(C_nb, dtype=float), fx, fy, fz,
+                        -1.0 / noise.gyro_bias_tau, -1.0 / noise.accel_bias_tau)
     return F
 
 
@@ -121,8 +73,8 @@ def initial_covariance(initial: InitialState, config: NavConfig) -> np.ndarray:
 def scale_factor_coupling(F: np.ndarray, C_nb: np.ndarray, f_b, omega_ib_b, sg: slice, sa: slice) -> None:
     """Fill the columns of the gyro (sg) and accelerometer (sa) scale-factor states in F (see the module
     docstring): specific force f_b [m/s^2] and angular rate omega_ib_b [rad/s], body frame, over the step."""
-    F[VEL, sa] = -C_nb * np.asarray(f_b, dtype=float)[None, :]
-    F[ATT, sg] = C_nb * np.asarray(omega_ib_b, dtype=float)[None, :]
+    (fx, fy, fz), (ox, oy, oz) = ([float(x) for x in v] for v in (f_b, omega_ib_b))
+    kernels.scale_factor_coupling(F, np.asarray(C_nb, dtype=float), fx, fy, fz, ox, oy, oz, sg.start, sa.start)
 
 
 def process_noise_psd(noise: ImuNoise) -> np.ndarray:
@@ -140,18 +92,7 @@ def process_noise_psd(noise: ImuNoise) -> np.ndarray:
     )
 
 
-def discretize(F: np.ndarray, q_psd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Transition Phi and process noise Qd over dt [s] (second-order Phi, trapezoidal Qd)."""
-    n = F.shape[0]
-    Fdt = F * dt
-    Phi = Fdt @ Fdt
-    Phi *= 0.5
-    Phi += Fdt
-    Phi.ravel()[:: n + 1] += 1.0
-    Qd = (Phi * q_psd) @ Phi.T  # Phi diag(q) Phi'
-    Qd.ravel()[:: n + 1] += q_psd
-    Qd *= 0.5 * dt
-    return Phi, Qd
+discretize = kernels.discretize  # (F, q_psd, dt) -> (Phi, Qd): second-order Phi, trapezoidal Qd
 
 
 @dataclass
@@ -175,8 +116,7 @@ class ErrorStateKF:
         self.P = np.array(P0, dtype=float)
 
     def propagate(self, Phi: np.ndarray, Qd: np.ndarray) -> None:
-        P = Phi @ self.P @ Phi.T + Qd
-        self.P = 0.5 * (P + P.T)
+        self.P = kernels.propagate(self.P, Phi, Qd)
 
     def update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, gate: float | None,
                gain_states: slice | None = None) -> UpdateResult:

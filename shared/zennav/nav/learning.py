@@ -180,14 +180,16 @@ class LearningTap:
     """The engine's side of the learning loop: windows, shadow INSs, samples and queries (see module docstring).
 
     horizon_s: longest drift horizon [s]; shadow_every_s: period of shadow starts [s]; sample_every_s: period
-    of drift samples per shadow [s]; body_every_s: span of the body-velocity features and period of its queries [s]."""
+    of drift samples per shadow [s]; body_every_s: span of the body-velocity features and period of its queries [s];
+    drift: start shadow INSs (the drift target's samples; each advances with every IMU sample)."""
 
     def __init__(self, horizon_s: float = 60.0, shadow_every_s: float = 10.0, sample_every_s: float = 1.0,
-                 body_every_s: float = BODY_EVERY_S):
+                 body_every_s: float = BODY_EVERY_S, drift: bool = True):
         self.horizon_ns = int(horizon_s * 1e9)
         self.every_ns = int(shadow_every_s * 1e9)
         self.sample_ns = int(sample_every_s * 1e9)
         self.body_every_s = body_every_s
+        self.drift = drift
         self.rate_window = FeatureWindow()
         self.body_window = FeatureWindow()  # since the last fix or body-velocity query
         self.body_chunks: deque[FeatureWindow] = deque()  # the last GNSS intervals' windows, back to back
@@ -222,7 +224,7 @@ class LearningTap:
                     d = sh.state
                     self.samples.append(LearnSample(t_ns, "drift", sh.window.drift_features(d), _ne_offset(d, s)))
         self.shadows = [sh for sh in self.shadows if t_ns - sh.t0_ns < self.horizon_ns] if converged else []
-        if converged and (not self.shadows or t_ns - self.shadows[-1].t0_ns >= self.every_ns):
+        if converged and self.drift and (not self.shadows or t_ns - self.shadows[-1].t0_ns >= self.every_ns):
             self.shadows.append(Shadow(t_ns, s, gyro_bias, accel_bias, prev_dtheta, prev_dvel))
         self.rate_window = FeatureWindow()
         self.body_window = FeatureWindow()

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import earth
+from . import earth, kernels
 from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, GnssPosition, Measurement, build_sources
 from .alignment import Alignment
 from .eskf import (
@@ -44,16 +44,13 @@ from .eskf import (
     VEL,
     ErrorStateKF,
     chi2_quantile,
-    discretize,
-    error_model,
     initial_covariance,
     process_noise_psd,
-    scale_factor_coupling,
 )
 from .learning import LearningTap, LearnQuery, LearnSample
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_quat_xyz, rotvec_to_quat
 from .strapdown import NavState, mechanize
-from .types import NS, AlignState, GnssFix, InitialState, NavConfig
+from .types import NS, AlignState, GnssFix, GnssState, InitialState, NavConfig
 
 if TYPE_CHECKING:
     from .smoother import Recorder
@@ -123,6 +120,8 @@ class Navigator:
         self.counters: Counter[str] = Counter()
         self.lever_b = np.asarray(config.lever_arm_b, dtype=float)
         self._q_psd = process_noise_psd(config.imu_noise)
+        # F diagonal of the gyro and accelerometer bias Gauss-Markov processes [1/s]
+        self._bias_decay = (-1.0 / config.imu_noise.gyro_bias_tau, -1.0 / config.imu_noise.accel_bias_tau)
         self._gates: dict[int, float | None] = {}
         self._prev_dtheta: tuple[float, ...] = (0.0, 0.0, 0.0)
         self._prev_dvel: tuple[float, ...] = (0.0, 0.0, 0.0)
@@ -134,7 +133,7 @@ class Navigator:
         self._imu_sample: tuple[list, list, float] = ([0.0] * 3, [0.0] * 3, 1.0)  # raw increments, interval [s]
         self._pending: list[GnssFix] = []
         self._reports: list[AidReport] = []
-        self.tap = LearningTap(config.learn_horizon_s) if config.learning else None
+        self.tap = LearningTap(config.learn_horizon_s, drift=config.learn_drift) if config.learning else None
         self._dx_since_fix = np.zeros(N_STATES)  # corrections of the GNSS fix being fused
         self.last_dx = np.zeros(N_STATES)  # correction of the last fused update
         self._learn_start_t_ns = self.t_ns + int(config.learn_after_s * NS)
@@ -184,6 +183,52 @@ class Navigator:
         if self.tap is not None:
             self.tap.maybe_query(self.t_ns, self.state, self.gnss_pos.interval_s)
         return True
+
+    def run_imu(self, t_ns: np.ndarray, dtheta_b: np.ndarray, dvel_b: np.ndarray, k0: int, k1: int, stop_ns: int,
+                out_nav: np.ndarray, out_std: np.ndarray, jit: bool = False) -> int:
+        """Process IMU samples k0, k0 + 1, ... of (t_ns (N,) int64 [ns], dtheta_b, dvel_b (N, 3) [rad, m/s, body]) as
+        on_imu would, in one loop (zennav.nav.kernels.run_block; compiled by numba with jit), until k1 or before the
+        first sample that needs the step-wise engine: one at or after stop_ns or a queued GNSS fix (to fuse in it),
+        one that a source's on_step acts on (the outage declaration, a constraint's update), one to reject.
+        Row k of out_nav (N, 10: lat, lon, h, v_n, q_nb) and out_std (N, 3: position 1-sigma [m, NED]) is the solution
+        after sample k. Returns the index of the first sample not processed; k0 (none) while the engine takes every
+        sample step-wise: coarse alignment, learning, a smoother recorder, a source acting at any sample."""
+        if k0 >= k1 or self.alignment.coarse or self.tap is not None or self.recorder is not None:
+            return k0
+        gp = self.gnss_pos
+        if self._pending:
+            stop_ns = min(stop_ns, self._pending[0].t_ns)
+        for src in self._step_sources:
+            if src is not gp:
+                due = src.next_step_ns(self)
+                if due is None:
+                    return k0
+                stop_ns = min(stop_ns, due)
+        s = self.state
+        nav = np.array([s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3])
+        prev = np.array([*self._prev_dtheta, *self._prev_dvel])
+        cov = np.array([self._cov_dt, *self._cov_dvel, *self._cov_dtheta])
+        P = np.ascontiguousarray(self.kf.P)
+        sg0, sa0 = (-1, -1) if self._scale is None else (self._scale[0].start, self._scale[1].start)
+        run_block = kernels.compiled().run_block if jit else kernels.run_block
+        k = run_block(t_ns, dtheta_b, dvel_b, int(k0), int(k1), int(self.t_ns), int(stop_ns),
+                      int(gp.valid_t_ns) if gp.gnss_state is GnssState.VALID else -1,
+                      float(self.config.outage_timeout_s), nav, np.array(self.gyro_bias + self.accel_bias),
+                      self._aug_x, sg0, sa0, prev, cov, P, self._q_psd, self._aug_decay, *self._bias_decay,
+                      float(self.config.cov_interval_s), out_nav, out_std)
+        if k == k0:
+            return k0
+        t_before = int(t_ns[k - 2]) if k - 1 > k0 else self.t_ns
+        self.t_ns = int(t_ns[k - 1])
+        dt = (self.t_ns - t_before) / NS
+        self.state = NavState(*nav.tolist())
+        self._prev_dtheta, self._prev_dvel = tuple(prev[:3].tolist()), tuple(prev[3:].tolist())
+        self._cov_dt, self._cov_dvel, self._cov_dtheta = float(cov[0]), cov[1:4].tolist(), cov[4:7].tolist()
+        self._imu_sample = (dtheta_b[k - 1].tolist(), dvel_b[k - 1].tolist(), dt)
+        self._omega_dt = (self._prev_dtheta, dt)
+        self.kf.P = P
+        self._update_stds()
+        return int(k)
 
     def on_gnss(self, fix: GnssFix) -> None:
         """Check a GNSS fix and queue it; it is fused when the IMU stream reaches its time (at once if it is
@@ -410,18 +455,10 @@ class Navigator:
         if dt <= 0.0:
             return
         s = self.state
-        f_b = np.array(self._cov_dvel) / dt
-        C_nb = s.C_nb
-        F = error_model(s.lat, s.h, (s.vn, s.ve, s.vd), C_nb, f_b, self.config.imu_noise)
-        n = self.n_states
-        if n > N_STATES:
-            F_aug = np.zeros((n, n))
-            F_aug[:N_STATES, :N_STATES] = F
-            F_aug.ravel()[N_STATES * (n + 1)::n + 1] = self._aug_decay
-            if self._scale is not None:
-                scale_factor_coupling(F_aug, C_nb, f_b, np.array(self._cov_dtheta) / dt, *self._scale)
-            F = F_aug
-        Phi, Qd = discretize(F, self._q_psd, dt)
+        (fx, fy, fz), (ox, oy, oz) = ([x / dt for x in v] for v in (self._cov_dvel, self._cov_dtheta))
+        sg0, sa0 = (-1, -1) if self._scale is None else (self._scale[0].start, self._scale[1].start)
+        Phi, Qd = kernels.transition(s.lat, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3, fx, fy, fz, ox, oy, oz,
+                                     self._q_psd, self._aug_decay, sg0, sa0, *self._bias_decay, dt)
         P_before = self.kf.P
         self.kf.propagate(Phi, Qd)
         if self.recorder is not None:

@@ -295,6 +295,7 @@ class NavConfig:
     learning: bool = False  # emit LearnSample / LearnQuery for learned INS-error compensation (nav/learning.py)
     learn_after_s: float = 30.0  # no training samples before this time [s] from the start (filter converging)
     learn_horizon_s: float = 60.0  # longest outage the "drift" target learns [s] (shadow INS length)
+    learn_drift: bool = True  # run the shadow INSs of the "drift" target's samples (off: none of its samples)
     learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
     learn_forward_only: bool = False  # with nhc: fuse only the forward output of the learned body velocity
     # learned DVL beam errors (zennav.nav.dvl_anomaly): hold time [s] of a sample waiting for its answers; the

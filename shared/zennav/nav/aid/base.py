@@ -96,6 +96,11 @@ class AidSource:
     def on_step(self, nav) -> None:
         """After every IMU sample (e.g. a timeout); the engine calls it only where a subclass defines it."""
 
+    def next_step_ns(self, nav) -> int | None:
+        """The first IMU time [ns] at which on_step may act (None: at any sample); the engine's block loop
+        (Navigator.run_imu) runs the samples before it without calling on_step."""
+        return None
+
     def report(self, nav, t_ns: int, observation, innovation, innovation_var, test_ratio: float, fused: bool,
                reason: str = "", faults=()) -> None:
         """Append this source's status record of one attempt to the engine's reports."""

@@ -42,6 +42,9 @@ class NonHolonomic(AidSource):
         v_v, H = self.vehicle.velocity(nav.state, omega_ib_b, nav.n_states)
         nav.update(self, Measurement(nav.t_ns, np.zeros(2), v_v[1:3], H[1:3], self.R))
 
+    def next_step_ns(self, nav) -> int | None:
+        return self.next_ns
+
     def get_state(self) -> dict:
         return {**super().get_state(), "next_ns": int(self.next_ns)}
 
