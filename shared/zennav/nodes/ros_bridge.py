@@ -10,9 +10,10 @@ FIX -> SINGLE, SBAS/GBAS -> DGPS; satellite count unknown). The stream starts (s
 and an IMU sample after them are in: position from the last fix, velocity from the two fixes' difference,
 attitude from the IMU message's orientation when it has one (orientation_covariance[0] >= 0), else heading
 unknown (the ins aligns); that IMU sample's time is the initial time, the stream's samples follow it. Samples
-are handed out in time order: one waits until a sample ``latency_s`` of data time newer has arrived (a fix
-that comes later than that is dropped, ``late_fix``). Rejections are counted by reason: ``bad_imu``
-(non-finite), ``imu_out_of_order``, ``fix_out_of_order``, ``bad_fix``, ``late_fix``.
+are handed out in time order: one waits until an IMU sample ``latency_s`` of data time newer has arrived (the
+IMU is the clock: a fix that arrives before the IMU samples of its time, their subscription lagging behind,
+waits for them; a fix that comes later than that is dropped, ``late_fix``). Rejections are counted by reason:
+``bad_imu`` (non-finite), ``imu_out_of_order``, ``fix_out_of_order``, ``bad_fix``, ``late_fix``.
 
 Out (``ros_outputs``): a nav_solution becomes sensor_msgs/NavSatFix (degrees, ENU covariance, diagonal known),
 nav_msgs/Odometry (frame ``map``: ENU metres from the first solution; child ``base_link``: orientation FLU in ENU,
@@ -60,7 +61,7 @@ class RosInput:
         self._first_fixes: list[GnssFix] = []  # the last two fixes released before the stream started
         self._prev_imu: tuple[int, np.ndarray, np.ndarray] | None = None
         self._last_out_t = -1
-        self._newest = -1
+        self._newest = -1  # [ns] the newest IMU sample's time
         self._q_nb: np.ndarray | None = None
         self._q_std: float | None = None
 
@@ -85,6 +86,7 @@ class RosInput:
             return []
         dt = (t - prev[0]) / NS
         self._push(t, 1, ("imu", t, t - prev[0], 0.5 * (w + prev[1]) * dt, 0.5 * (f + prev[2]) * dt))
+        self._newest = t
         return self._release()
 
     def on_fix(self, msg) -> list[tuple[str, dict]]:
@@ -112,7 +114,6 @@ class RosInput:
     def _push(self, t: int, order: int, item) -> None:
         self._k += 1
         heapq.heappush(self._heap, (t, order, self._k, item))
-        self._newest = max(self._newest, t)
 
     def _release(self, flush: bool = False) -> list[tuple[str, dict]]:
         out: list[tuple[str, dict]] = []
