@@ -455,8 +455,11 @@ def _horizontal_error(ds, res: ReplayResult, sel: np.ndarray) -> np.ndarray:
     return np.hypot(e[:, 0], e[:, 1])
 
 
-def write_plots(out: Path, ds, runs: dict[str, ReplayResult]) -> list[Path]:
-    """horizontal_error.png (error vs time, outages shaded) and track.png (north/east, truth and solutions)."""
+def write_plots(out: Path, ds, runs: dict[str, ReplayResult], windows: list[tuple[float, float]] | None = None,
+                window_name: str = "GNSS outage") -> list[Path]:
+    """horizontal_error.png (error vs time, the windows shaded) and track.png (north/east, truth and solutions, and a
+    zoom on the end of the last window, where the drift peaks). windows: [(start, end)] [s from the initial time],
+    named window_name in the plots (default: the first run's GNSS outages)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -468,11 +471,12 @@ def write_plots(out: Path, ds, runs: dict[str, ReplayResult]) -> list[Path]:
     idx = np.flatnonzero((truth.t_ns >= first.t_ns[0]) & (truth.t_ns <= first.t_ns[-1]))
     idx = idx[:: max(1, len(idx) // 20_000)]
     t_s = (truth.t_ns[idx] - t0) / NS
-    windows = [((a - t0) / NS, (b - t0) / NS) for a, b in first.windows]
+    if windows is None:
+        windows = [((a - t0) / NS, (b - t0) / NS) for a, b in first.windows]
 
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for i, (a, b) in enumerate(windows):
-        ax.axvspan(a, b, color="tab:red", alpha=0.15, label="GNSS outage" if i == 0 else None)
+        ax.axvspan(a, b, color="tab:red", alpha=0.15, label=window_name if i == 0 else None)
     for label, res in runs.items():
         ax.plot(t_s, _horizontal_error(ds, res, idx), lw=1, label=label)
     ax.set(xlabel="time from start [s]", ylabel="horizontal error [m]", title=f"{ds.name}: horizontal position error")
@@ -486,8 +490,8 @@ def write_plots(out: Path, ds, runs: dict[str, ReplayResult]) -> list[Path]:
     origin = np.repeat(truth.llh[idx[:1]], len(idx), axis=0)
     fig, axes = plt.subplots(1, 2, figsize=(13, 6.5))
     end = windows[-1][1] if windows else t_s[-1]
-    zoom = (t_s >= end - 6.0) & (t_s <= end + 2.0)  # the end of the (last) outage, where the drift peaks
-    for ax, sel, title in ((axes[0], np.ones_like(zoom), "track"), (axes[1], zoom, "end of the GNSS outage")):
+    zoom = (t_s >= end - 6.0) & (t_s <= end + 2.0)  # the end of the (last) window, where the drift peaks
+    for ax, sel, title in ((axes[0], np.ones_like(zoom), "track"), (axes[1], zoom, f"end of the {window_name}")):
         ne = ned_errors(truth.llh[idx[sel]], origin[sel])
         ax.plot(ne[:, 1], ne[:, 0], "k-", lw=2.5, alpha=0.35, label="truth")
         for label, res in runs.items():
@@ -498,7 +502,7 @@ def write_plots(out: Path, ds, runs: dict[str, ReplayResult]) -> list[Path]:
             inside = (t_s >= a) & (t_s < b) & sel
             ne = ned_errors(truth.llh[idx[inside]], origin[inside])
             ax.plot(ne[:, 1], ne[:, 0], color="tab:red", lw=5, alpha=0.25,
-                    label="truth during GNSS outage" if i == 0 else None)
+                    label=f"truth during {window_name}" if i == 0 else None)
         ax.set(xlabel="east [m]", ylabel="north [m]", title=f"{ds.name}: {title}")
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)

@@ -148,7 +148,9 @@ def run_auv_demo(out: Path, spec: DemoSpec, launch_file: Path = AUV_LAUNCH) -> N
     m["pipeline"] = {"launch_file": str(launch_file), "recording": str(recording), "recorded_messages": n_recorded,
                      "ins_status": st, "vs_in_process": diff, "aid_records": records}
     write_outputs(out, ds, pipe.result, m)
-    plots = write_plots(out, ds, {"over the bus": pipe.result})
+    plots = write_plots(out, ds, {"learned compensation, over the bus": pipe.result,
+                                  "without it, in process": plain},
+                        windows=[(r["start_s"], r["end_s"]) for r in rows], window_name="dive")
     click.echo("\nAccuracy against the truth, over the bus:")
     click.echo(format_table(m))
     click.echo(f"\nrecording  {recording} ({n_recorded} messages on {len(recorded)} keys; opens in Foxglove)"
