@@ -304,3 +304,20 @@ def test_yaml_errors_name_the_yaml_and_the_line(tmp_path, monkeypatch):
     path.write_text("\n".join(lines))
     with pytest.raises(DataError, match=r"imu\.txt:2: line has 1 columns"):
         kfgins.load_config(path)
+
+
+def test_kfgins_repository_layout_runs_from_any_directory(tmp_path, monkeypatch):
+    """KF-GINS's own dataset/kf-gins.yaml names its files ./dataset/X.txt, relative to the repository's root (where
+    KF-GINS runs): found from there and from any other directory."""
+    dataset = tmp_path / "KF-GINS" / "dataset"
+    dataset.mkdir(parents=True)
+    path = write_demo(dataset, imupath="./dataset/imu.txt", gnsspath="./dataset/gnss.txt")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    for cwd in (tmp_path / "KF-GINS", elsewhere):
+        monkeypatch.chdir(cwd)
+        ds = kfgins.load_config(path)
+        assert len(ds.imu) == 10 and len(ds.gnss) == 2
+    (dataset / "gnss.txt").unlink()
+    with pytest.raises(DataError, match=r"gnsspath.*'./dataset/gnss.txt' not found"):
+        kfgins.load_config(path)

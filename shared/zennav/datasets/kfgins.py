@@ -349,18 +349,21 @@ class _Config:
     def file(self, key: str, required: bool) -> Path | None: ...
 
     def file(self, key: str, required: bool = True) -> Path | None:
-        """A file path; relative paths as KF-GINS (current directory), else relative to the YAML's folder."""
+        """A file path; relative paths as KF-GINS (current directory), else relative to the YAML's folder, else to the
+        folder above it (KF-GINS's own layout: `dataset/kf-gins.yaml` names `./dataset/X.txt`, relative to the
+        repository's root, from which KF-GINS is run)."""
         value = self.get(key, required=required)
         if value is None and not required:
             return None
         if not isinstance(value, str) or not value:
             raise self.error((key,), f"expected a file path, got {value!r}")
         path = Path(value)
-        candidates = [path] if path.is_absolute() else [Path.cwd() / path, self.path.parent / path]
-        for candidate in candidates:
+        folder = self.path.parent
+        bases = [] if path.is_absolute() else [Path.cwd(), folder, folder.parent]
+        for candidate in [base / path for base in bases] or [path]:
             if candidate.is_file():
                 return candidate
-        where = "" if path.is_absolute() else f" (looked in {Path.cwd()} and {self.path.parent})"
+        where = f" (looked in {', '.join(map(str, bases))})" if bases else ""
         raise self.error((key,), f"file '{value}' not found{where}")
 
 
