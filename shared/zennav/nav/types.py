@@ -363,6 +363,9 @@ class NavConfig:
     dvl_scale_std: float = 0.005  # initial 1-sigma of the scale-factor error [ratio]
     dvl_scale_psd: float = 1e-9  # PSD of its driving noise [ratio^2/s]
     dvl_scale_tau_s: float = 3600.0  # its correlation time [s]
+    dvl_mount_std: float = math.radians(0.5)  # initial 1-sigma of each mounting-misalignment angle [rad] (0: none)
+    dvl_mount_psd: float = 1e-6 * math.radians(1.0) ** 2  # PSD of its driving noise [rad^2/s]
+    dvl_mount_tau_s: float = 100000.0  # its correlation time [s]
     dvl_max_age_s: float = 0.2  # a sample older than this behind the IMU time is not fused [s]
     dvl_max_beam_mps: float = 10.0  # a valid beam faster than this (either sign) is malformed [m/s]
     # pressure depth with a bias state (zennav.nav.aid.depth)

@@ -41,6 +41,17 @@ def parse_windows(text: str) -> tuple[tuple[float, float], ...]:
     return tuple(out)
 
 
+def parse_angles(text) -> np.ndarray:
+    """'ROLL,PITCH,YAW' [deg] (or three numbers) -> (3,) [rad]; ValueError when malformed."""
+    try:
+        out = np.radians([float(x) for x in (str(text).split(",") if isinstance(text, str) else text)])
+    except (TypeError, ValueError):
+        raise ValueError(f"expected ROLL,PITCH,YAW in degrees, got {text!r}") from None
+    if out.shape != (3,) or not np.all(np.isfinite(out)):
+        raise ValueError(f"expected three finite angles ROLL,PITCH,YAW in degrees, got {text!r}")
+    return out
+
+
 def parse_bias_jump(text: str) -> tuple[float, int, float] | None:
     """'START:BEAM:SIZE' (s, beam 1..4, m/s) -> (start_s, beam index 0..3, size_mps); '' -> None."""
     if not text:
@@ -61,7 +72,8 @@ def make_auv_dataset(duration_s: float = 900.0, seed: int = 0, imu_grade: str = 
                      dvl_bias_mps: float = 0.01, dvl_scale_error: float = 0.004, dvl_dropout: float = 0.01,
                      dvl_outlier_prob: float = 0.002, dvl_outlier_mps: float = 0.5, dvl_bottom_loss: str = "600:20",
                      dvl_burst: str = "", dvl_burst_factor: float = 10.0, dvl_bias_jump: str = "",
-                     dvl_tilt_deg: float = 30.0, dvl_layout: str = "x", depth_rate_hz: float = 5.0,
+                     dvl_tilt_deg: float = 30.0, dvl_layout: str = "x", dvl_misalignment_deg: str = "0,0,0",
+                     depth_rate_hz: float = 5.0,
                      depth_bias_m: float = 0.2, depth_noise_m: float = 0.02, **kw) -> Dataset:
     """The simulated AUV (module docstring). duration_s [s], seed (everything random), imu_grade / imu_rate_hz [Hz]
     (zennav.sim.scenarios IMU_GRADES: navigation, tactical, ...); surface_s [s] at the surface before the dive,
@@ -70,7 +82,9 @@ def make_auv_dataset(duration_s: float = 900.0, seed: int = 0, imu_grade: str = 
     per-beam dropout probability dvl_dropout, outliers with probability dvl_outlier_prob of 1-2 x dvl_outlier_mps,
     bottom-loss windows dvl_bottom_loss and noise bursts dvl_burst ('START:DURATION[,...]' s from the start, noise
     x dvl_burst_factor), a bias jump dvl_bias_jump ('START:BEAM:SIZE', s, 1..4, m/s); beam tilt dvl_tilt_deg [deg]
-    and layout ("+" / "x"); depth at depth_rate_hz [Hz] with bias depth_bias_m and noise depth_noise_m [m].
+    and layout ("+" / "x"); a mounting misalignment dvl_misalignment_deg ('ROLL,PITCH,YAW' [deg]: the DVL's true
+    frame rotated by these Euler angles from the mounting the filter is told, DVL_MOUNT_EULER); depth at
+    depth_rate_hz [Hz] with bias depth_bias_m and noise depth_noise_m [m].
     kw go to zennav.sim.scenarios.make_dataset (gnss_rate_hz, gnss_std_ned, start_llh_deg: its height is the water
     surface, ...)."""
     kw.setdefault("start_llh_deg", (30.53, 114.36, 0.0))
@@ -92,7 +106,8 @@ def make_auv_dataset(duration_s: float = 900.0, seed: int = 0, imu_grade: str = 
         raise ValueError(f"dvl_burst_factor must be >= 1 (the noise of a burst over the DVL's), got {dvl_burst_factor}")
     tilt = math.radians(dvl_tilt_deg)
     B = janus_directions(tilt, dvl_layout)
-    C_db = euler_to_dcm(np.asarray(DVL_MOUNT_EULER, dtype=float)).T
+    misalignment = parse_angles(dvl_misalignment_deg)
+    C_db = euler_to_dcm(misalignment).T @ euler_to_dcm(np.asarray(DVL_MOUNT_EULER, dtype=float)).T
     dvl, true_beams = simulate_dvl(traj, _gnss_times(t0_ns, t_end_ns, dvl_rate_hz), t0_ns, B, C_db,
                                    DVL_LEVER_B, errors, np.random.default_rng(ss_dvl))
     t_s = (dvl.t_ns - t0_ns) / NS
@@ -119,6 +134,7 @@ def make_auv_dataset(duration_s: float = 900.0, seed: int = 0, imu_grade: str = 
             "dvl_outlier_mps": dvl_outlier_mps, "dvl_bottom_loss_s": [list(w) for w in bottom_loss],
             "dvl_burst_s": [list(w) for w in bursts], "dvl_burst_factor": dvl_burst_factor,
             "dvl_bias_jump": dvl_bias_jump or None, "dvl_tilt_deg": dvl_tilt_deg, "dvl_layout": dvl_layout,
+            "dvl_misalignment_deg": np.degrees(misalignment).tolist(),
             "dvl_lever_b_m": list(DVL_LEVER_B), "depth_rate_hz": depth_rate_hz, "depth_bias_m": depth_bias_m,
             "depth_noise_m": depth_noise_m, "surface_s": surface_s, "max_depth_m": max_depth_m,
         })

@@ -5,12 +5,23 @@ Measurement model (seed step 1.3; Brokloff 1994; Wang, Xu et al., "A tightly-cou
 using beam measurements", e.g. Sensors 2018/IEEE Access 2019): the velocity of the DVL point in its frame d is
     v_d = C_db (C_bn v_n + omega_nb_b x l_b)           (zennav.nav.aid.vehicle with C_db, l_b = NavConfig dvl_*)
 and beam i (unit vector b_i in d, zennav.nav.beams) measures
-    v_beam_i = (1 + k) b_i' v_d + bias_i + noise,      noise ~ N(0, dvl_beam_std_mps^2)
-with k the DVL scale-factor error and bias_i the beam's bias: five augmented states of the engine (Navigator.add_states
-"dvl_bias" (4), "dvl_scale" (1); first-order Gauss-Markov, NavConfig dvl_bias_* / dvl_scale_*; values estimate minus
-truth as every error state). With the vehicle-model Jacobian H_v of v_d (v_d_hat ~ v_d + H_v dx):
-    z_i = (1 + k_hat) b_i' v_d_hat + bias_hat_i - v_beam_i   (predicted minus observed)
-    H_i = [(1 + k_hat) b_i' H_v,  1 in bias_i's column,  b_i' v_d_hat in k's column].
+    v_beam_i = (1 + k) b_i' (I - [mu x]) v_d + bias_i + noise,      noise ~ N(0, dvl_beam_std_mps^2)
+with k the DVL scale-factor error, bias_i the beam's bias and mu (3,) [rad] the mounting misalignment: the small
+rotation of the DVL's true frame about its own axes beyond the configured mounting (C_db,true = (I - [mu x]) C_db;
+for a DVL mounted along the body axes mu is its roll, pitch and yaw). Augmented states of the engine
+(Navigator.add_states "dvl_bias" (4), "dvl_scale" (1), "dvl_mount" (3, only where dvl_mount_std > 0); first-order
+Gauss-Markov, NavConfig dvl_bias_* / dvl_scale_* / dvl_mount_*; values estimate minus truth as every error state).
+With the vehicle-model Jacobian H_v of v_d (v_d_hat ~ v_d + H_v dx) and u = (I - [mu_hat x]) v_d_hat:
+    z_i = (1 + k_hat) b_i' u + bias_hat_i - v_beam_i   (predicted minus observed)
+    H_i = [(1 + k_hat) b_i' (I - [mu_hat x]) H_v,  1 in bias_i's column,  b_i' u in k's column,
+           (1 + k_hat) b_i' [v_d_hat x] in mu's columns]
+((I - [mu x]) v = v + [v x] mu). This is the INS/DVL alignment calibration as filter states: Groves 2013, sections
+6.5 and 16.3 (Doppler sonar aiding of an INS, with boresight-misalignment and scale-factor states), and Troni &
+Whitcomb 2015 ("Advances in in situ alignment calibration of Doppler and high/low-end attitude sensors for underwater
+vehicle navigation", J. Field Robotics 32(5)), whose point is what limits it here too: the yaw and pitch misalignment
+are observable against GNSS at the surface and in turns and speed changes (a constant beam bias is the same lateral
+velocity error at a constant speed); the roll misalignment only through a lateral or vertical velocity, about zero for
+a cruising AUV, so it stays near its prior.
 Tight coupling fuses each VALID beam as its own row: a missing beam is simply left out of H, so three, two (adjacent
 or opposite) or even one beam still aid the filter. The partial-beam case of each sample (zennav.nav.beams.beam_case:
 4, 3, 2_orthogonal, 2_parallel, 1, 0 valid beams) is counted (dvl_beams_<case>) and flagged in its status record
@@ -46,6 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..beams import beam_case, beams_from_velocity, janus_directions, reconstruct_beams, velocity_from_beams
+from ..rotation import skew
 from ..types import NS, AlignState, DvlSample, NavConfig
 from ..vbkf import variational_r
 from .base import AidSource, Measurement
@@ -143,13 +155,15 @@ class _DvlSource(AidSource):
 
 
 class DvlTight(_DvlSource):
-    """Per-beam DVL fusion with four beam-bias states and one scale-factor state (module docstring); name dvl."""
+    """Per-beam DVL fusion with four beam-bias states, one scale-factor state and (dvl_mount_std > 0) three
+    mounting-misalignment states (module docstring); name dvl."""
 
     def __init__(self, config: NavConfig):
         super().__init__("dvl", config)
         self.R_beam = config.dvl_beam_std_mps**2
-        self.bias: slice | None = None  # where the beam biases and the scale factor sit in the error state (attach)
-        self.scale: slice | None = None
+        self.bias: slice | None = None  # where the beam biases, the scale factor and the misalignment sit in the
+        self.scale: slice | None = None  # error state (attach); mount None: not estimated
+        self.mount: slice | None = None
 
     def attach(self, nav) -> None:
         cfg = self.config
@@ -157,18 +171,27 @@ class DvlTight(_DvlSource):
                                    cfg.dvl_bias_tau_s)
         self.scale = nav.add_states("dvl_scale", np.array([cfg.dvl_scale_std]), np.array([cfg.dvl_scale_psd]),
                                     cfg.dvl_scale_tau_s)
+        if cfg.dvl_mount_std > 0.0:
+            self.mount = nav.add_states("dvl_mount", np.full(3, cfg.dvl_mount_std), np.full(3, cfg.dvl_mount_psd),
+                                        cfg.dvl_mount_tau_s)
 
     def model(self, nav) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted beams (4,) [m/s] (1 + k_hat) B v_d_hat + bias_hat at the engine's state, and their Jacobian
-        H (4 x n_states)."""
+        """Predicted beams (4,) [m/s] (1 + k_hat) B (I - [mu_hat x]) v_d_hat + bias_hat at the engine's state, and
+        their Jacobian H (4 x n_states)."""
         assert self.bias is not None and self.scale is not None  # attached by Navigator.add_source
         v_d, H_v = self.velocity(nav)
         k = float(nav.aug_value(self.scale)[0])
         bias = nav.aug_value(self.bias)
-        Bv = self.B @ v_d
-        H = (1.0 + k) * (self.B @ H_v)
+        if self.mount is None:
+            B = self.B
+        else:
+            B = self.B @ (np.eye(3) - skew(nav.aug_value(self.mount)))  # beams of the misaligned frame, in d
+        Bv = B @ v_d
+        H = (1.0 + k) * (B @ H_v)
         H[:, self.bias] = np.eye(4)
         H[:, self.scale] = Bv[:, None]
+        if self.mount is not None:
+            H[:, self.mount] = (1.0 + k) * (self.B @ skew(v_d))
         return (1.0 + k) * Bv + bias, H
 
     def on_input(self, nav, sample: DvlSample) -> bool:
