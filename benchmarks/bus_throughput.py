@@ -13,7 +13,9 @@
               published, answers fused).
    Each with one IMU sample per message and with ``zennav-ingest --batch N`` (--batch, default 50: up to N
    consecutive samples per imu_batch message, the same samples, order and solutions).
-   Rate = IMU samples consumed / wall time between the consumer's first message and the stream's end.
+   Rate = IMU samples consumed / wall time between the consumer's first message and the stream's end; beside it
+   the consumer's CPU time per sample over the same span (its process, all threads: the engine, the decoding and
+   zenoh's own threads), the figure a loaded machine distorts least.
 2. Latency: IMU paced at 200 Hz (real time), one sample per message; latency = wall clock at nav/solution
    receive (this process) minus the IMU message's publish time (ingest), percentiles over every sample.
 3. Stage costs (in this process, no transport): microseconds per IMU sample of decode+validate, merge, the ins's
@@ -121,22 +123,22 @@ def sink_main(argv) -> int:
     args = p.parse_args(argv)
     run = ServiceRunner("ins", args)
     pub = run.bus.publisher(run.keys.nav_status())
-    st: dict[str, Any] = {"imu": 0, "t0": None}
+    st: dict[str, Any] = {"imu": 0, "t0": None, "cpu0": 0.0}
 
     def on_sample(key, msg) -> None:
         if msg["schema"] == "imu":
             st["imu"] += 1
 
     def on_end(msg) -> None:
-        wall = time.perf_counter() - st["t0"]
+        wall, cpu = time.perf_counter() - st["t0"], time.process_time() - st["cpu0"]
         pub.put(M.make("nav_status", msg["t_ns"], gnss_state="valid", counters={}, rejected={}, imu_count=st["imu"],
-                       gnss_count=0, model={}, stream={**follower.status(), "wall_s": wall}))
+                       gnss_count=0, model={}, stream={**follower.status(), "wall_s": wall, "cpu_s": cpu}))
 
     follower = StreamFollower(lambda start, join: None, on_sample, on_end, run.stream_start_of, run.log)
 
     def on(key, msg, recv_ns) -> None:
         if st["t0"] is None:
-            st["t0"] = time.perf_counter()
+            st["t0"], st["cpu0"] = time.perf_counter(), time.process_time()
         follower.on_message(key, msg)
 
     run.bus.recovering_subscribe(run.keys.sensors(), on, channel="fifo", capacity=args.queue, name="sensors")
@@ -203,7 +205,8 @@ def run_case(kind: str, via_router: bool, duration: float, speed: str, want_late
         out = {"consumer": kind, "via": "router" if via_router else "peer-to-peer", "batch": batch,
                "solution_every": solution_every, "imu_samples": n,
                "expected": int(duration * 200), "wall_s": round(st["wall_s"], 3),
-               "rate_per_s": round(n / st["wall_s"]), "lost": int(duration * 200) - n,
+               "rate_per_s": round(n / st["wall_s"]), "cpu_us_per_sample": round(st.get("cpu_s", 0.0) / n * 1e6, 2),
+               "lost": int(duration * 200) - n,
                "gap": st.get("gap", 0), "duplicate": st.get("duplicate", 0)}
         if want_latency:
             t_end = time.monotonic() + 10
@@ -307,14 +310,17 @@ def throughput(kinds: list[str], routes: list[bool], duration: float, batch: int
             runs = [run_case(kind, via_router, duration, "0", want_latency=False, batch=b, solution_every=every)
                     for _ in range(repeat)]
             rates = sorted(r["rate_per_s"] for r in runs)
+            cpu = statistics.median(r["cpu_us_per_sample"] for r in runs)
             r = {"test": "throughput", **runs[0], "rate_per_s": int(statistics.median(rates)), "rates": rates,
+                 "cpu_us_per_sample": cpu,
                  "lost": sum(x["lost"] for x in runs), "gap": sum(x["gap"] for x in runs),
                  "duplicate": sum(x["duplicate"] for x in runs)}
             del r["wall_s"], r["imu_samples"]
             results.append(r)
             sols = f" (1 solution in {every})" if every > 1 else ""
             print(f"throughput {r['via']:<13} ingest -> {kind:<12} batch {b:>3}{sols}: median {r['rate_per_s']:>7} "
-                  f"IMU/s over {len(runs)} runs (range {rates[0]}-{rates[-1]}; {runs[0]['expected']} samples each, "
+                  f"IMU/s over {len(runs)} runs (range {rates[0]}-{rates[-1]}; consumer CPU {cpu:.1f} us/sample; "
+                  f"{runs[0]['expected']} samples each, "
                   f"lost {r['lost']}, gaps {r['gap']}, duplicates {r['duplicate']})", flush=True)
     return results
 
@@ -372,6 +378,7 @@ def main() -> int:
     ap.add_argument("--router", action="store_true", help="also every case through a router")
     ap.add_argument("--no-learn", action="store_true", help="skip the learning-loop case")
     ap.add_argument("--no-compiled", action="store_true", help="skip the zennav-ins --compiled case")
+    ap.add_argument("--consumers", default=None, help="comma-separated consumers to run (default: all not skipped)")
     ap.add_argument("--only", default=None, choices=("throughput", "latency", "stages"), help="run one part")
     ap.add_argument("--json", default=None, help="also write the results here")
     args, rest = ap.parse_known_args()
@@ -390,6 +397,7 @@ def main() -> int:
     if args.only in (None, "throughput"):
         kinds = ["bus", "ins"] + ([] if args.no_compiled or args.batch <= 1 else ["ins-compiled"]) + \
             ([] if args.no_learn else ["learn"])
+        kinds = [k for k in kinds if args.consumers is None or k in args.consumers.split(",")]
         results += throughput(kinds, routes, args.duration, args.batch, args.repeat, args.solution_every)
     if args.only in (None, "latency"):
         results += latency(routes, args.latency_duration, args.repeat)

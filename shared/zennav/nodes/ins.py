@@ -74,6 +74,7 @@ class InsNode:
         self.aid_count: Counter[str] = Counter()  # aid samples consumed per stream (dvl, depth)
         self._held: list[dict] = []  # aid messages waiting for the IMU sample that reaches their time
         self.wall_s, self._wall0, self._next_status_t, self._states = 0.0, 0.0, 0, (None, None)
+        self.cpu_s, self._cpu0 = 0.0, 0.0  # [s] CPU time of this process (all threads) over the stream
         self._late = False  # this stream was joined late (its samples before the join are not ours)
         self.checkpoint = checkpoint or Checkpointer(None)
         self.bridge_max_ns = int(bridge_max_s * 1e9)
@@ -143,6 +144,7 @@ class InsNode:
         self._next_status_t = int(initial.t_ns) + self.status_period_ns
         self._states = (nav.gnss_state, nav.align_state)
         self._wall0, self.wall_s = time.perf_counter(), 0.0
+        self._cpu0, self.cpu_s = time.process_time(), 0.0
 
     def _bridge(self, msg: dict) -> dict | None:
         """An IMU sample after lost ones (its interval starts after the last one given to the engine): up to
@@ -269,6 +271,7 @@ class InsNode:
     def _end(self, msg: dict) -> None:
         self._flush()
         self.wall_s = time.perf_counter() - self._wall0
+        self.cpu_s = time.process_time() - self._cpu0
         c = msg["counts"]
         got = {"imu": self.imu_count, "gnss": self.gnss_count, **self._aid_counts()}
         complete = all(c.get(kind, 0) == n for kind, n in got.items())
@@ -316,7 +319,8 @@ class InsNode:
         nav = self.nav
         return M.nav_status_msg(
             nav.t_ns if nav is not None else 0, nav.status() if nav is not None else None,
-            {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s, **self.recovery},
+            {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s, "cpu_s": self.cpu_s,
+             **self.recovery},
             {**self.bus_rejected(), **self.follower.counts}, self.imu_count, self.gnss_count,
             {"corrections_received": self.corrections,
              **(self.learn.status() if self.learn is not None else {"learning": False, "corrections_fused": 0})},
