@@ -7,11 +7,15 @@
    - "bus":   a stand-in that receives, decodes, validates and merges (zennav.stream.StreamFollower: cseq order,
               imu_batch expanded, the time chain checked) and hands each sample to a no-op: the transport ceiling;
    - "ins":   zennav-ins (the navigation engine per sample, one solution published per sample);
+   - "ins-compiled": zennav-ins --compiled, batched only (each imu_batch through the engine's block loop compiled
+              by numba; the same solutions);
    - "learn": zennav-ins --learning with zennav-trainer and zennav-predictor running (samples and queries
               published, answers fused).
    Each with one IMU sample per message and with ``zennav-ingest --batch N`` (--batch, default 50: up to N
    consecutive samples per imu_batch message, the same samples, order and solutions).
-   Rate = IMU samples consumed / wall time between the consumer's first message and the stream's end.
+   Rate = IMU samples consumed / wall time between the consumer's first message and the stream's end; beside it
+   the consumer's CPU time per sample over the same span (its process, all threads: the engine, the decoding and
+   zenoh's own threads), the figure a loaded machine distorts least.
 2. Latency: IMU paced at 200 Hz (real time), one sample per message; latency = wall clock at nav/solution
    receive (this process) minus the IMU message's publish time (ingest), percentiles over every sample.
 3. Stage costs (in this process, no transport): microseconds per IMU sample of decode+validate, merge, the ins's
@@ -119,22 +123,22 @@ def sink_main(argv) -> int:
     args = p.parse_args(argv)
     run = ServiceRunner("ins", args)
     pub = run.bus.publisher(run.keys.nav_status())
-    st: dict[str, Any] = {"imu": 0, "t0": None}
+    st: dict[str, Any] = {"imu": 0, "t0": None, "cpu0": 0.0}
 
     def on_sample(key, msg) -> None:
         if msg["schema"] == "imu":
             st["imu"] += 1
 
     def on_end(msg) -> None:
-        wall = time.perf_counter() - st["t0"]
+        wall, cpu = time.perf_counter() - st["t0"], time.process_time() - st["cpu0"]
         pub.put(M.make("nav_status", msg["t_ns"], gnss_state="valid", counters={}, rejected={}, imu_count=st["imu"],
-                       gnss_count=0, model={}, stream={**follower.status(), "wall_s": wall}))
+                       gnss_count=0, model={}, stream={**follower.status(), "wall_s": wall, "cpu_s": cpu}))
 
     follower = StreamFollower(lambda start, join: None, on_sample, on_end, run.stream_start_of, run.log)
 
     def on(key, msg, recv_ns) -> None:
         if st["t0"] is None:
-            st["t0"] = time.perf_counter()
+            st["t0"], st["cpu0"] = time.perf_counter(), time.process_time()
         follower.on_message(key, msg)
 
     run.bus.recovering_subscribe(run.keys.sensors(), on, channel="fifo", capacity=args.queue, name="sensors")
@@ -146,8 +150,9 @@ def start_consumer(procs: Procs, kind: str, bus_args: list[str], bus, solution_e
     wait = ["ins"]
     if kind == "bus":
         procs.start([PY, __file__, "--role", "sink", *bus_args], "sink")
-    elif kind == "ins":
-        procs.start([PY, "-m", "zennav.services.ins", "--solution-every", str(solution_every), *bus_args], "ins")
+    elif kind in ("ins", "ins-compiled"):
+        procs.start([PY, "-m", "zennav.services.ins", "--solution-every", str(solution_every), *bus_args,
+                     *(["--compiled"] if kind == "ins-compiled" else [])], "ins")
     else:  # the learning loop: development signing (unsigned sets), the trainer on the CPU
         procs.start([PY, "-m", "zennav.services.predictor", "--allow-unsigned", *bus_args], "predictor")
         procs.start([PY, "-m", "zennav.services.trainer", "--unsigned", "--device", "cpu", "--torch-threads", "1",
@@ -200,7 +205,8 @@ def run_case(kind: str, via_router: bool, duration: float, speed: str, want_late
         out = {"consumer": kind, "via": "router" if via_router else "peer-to-peer", "batch": batch,
                "solution_every": solution_every, "imu_samples": n,
                "expected": int(duration * 200), "wall_s": round(st["wall_s"], 3),
-               "rate_per_s": round(n / st["wall_s"]), "lost": int(duration * 200) - n,
+               "rate_per_s": round(n / st["wall_s"]), "cpu_us_per_sample": round(st.get("cpu_s", 0.0) / n * 1e6, 2),
+               "lost": int(duration * 200) - n,
                "gap": st.get("gap", 0), "duplicate": st.get("duplicate", 0)}
         if want_latency:
             t_end = time.monotonic() + 10
@@ -223,8 +229,9 @@ def percentiles(ms: np.ndarray) -> dict:
 def stage_costs(duration: float, batch: int) -> dict:
     """[us per IMU sample] of the ins's per-message path in this process (no transport), on the messages ingest
     would publish (encoded): decode+validate (zennav.messages.Validator), merge (StreamFollower to a no-op), the ins
-    (InsNode.on_sensor: merge, engine, solution built; published to a no-op) and the solution message (build +
-    encode, zennav.messages.nav_solution_msg_of). Best of 3 passes each (the machine is shared)."""
+    (InsNode.on_sensor: merge, engine, solution built; published to a no-op; batched: also with the compiled block
+    loop, zennav-ins --compiled) and the solution message (build + encode, zennav.messages.nav_solution_msg_of).
+    Best of 3 passes each (the machine is shared)."""
     import logging
 
     from zennav import messages as M
@@ -271,39 +278,49 @@ def stage_costs(duration: float, batch: int) -> dict:
         for i in range(n):
             M.encode(M.nav_solution_msg_of(nav, i, 0))
 
-    def built_ins() -> tuple:
-        return InsNode(lambda kind, msg: None, log), decoded()
+    def built_ins(block_loop=None) -> tuple:
+        return InsNode(lambda kind, msg: None, log, block_loop=block_loop), decoded()
 
     def navigated():
         node, msgs = built_ins()
         ins((node, msgs))
         return node.nav
 
-    return {"batch": batch, "decode_validate": best(lambda: None, lambda _: decoded()),
-            "merge": best(decoded, merge), "ins": best(built_ins, ins), "solution_msg": best(navigated, solution)}
+    out = {"batch": batch, "decode_validate": best(lambda: None, lambda _: decoded()),
+           "merge": best(decoded, merge), "ins": best(built_ins, ins), "solution_msg": best(navigated, solution)}
+    if batch > 1:
+        from zennav.nav import kernels
+
+        kernels.compiled()  # loaded (compiled once per machine) outside the timing
+        out["ins_compiled"] = best(lambda: built_ins("compiled"), ins)
+    return out
 
 
 def throughput(kinds: list[str], routes: list[bool], duration: float, batch: int, repeat: int,
                solution_every: int) -> list[dict]:
-    """Every kind with one sample per message and with batch; the ins also publishing one solution in
-    solution_every (when > 1, batched)."""
-    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch})]
-    if "ins" in kinds and solution_every > 1:
-        cases.insert(cases.index(("ins", batch, 1)) + 1, ("ins", batch, solution_every))
+    """Every kind with one sample per message and with batch (ins-compiled: batched only); the ins also publishing
+    one solution in solution_every (when > 1, batched)."""
+    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch}) if kind != "ins-compiled" or b > 1]
+    for kind in ("ins", "ins-compiled"):
+        if kind in kinds and solution_every > 1 and batch > 1:
+            cases.insert(cases.index((kind, batch, 1)) + 1, (kind, batch, solution_every))
     results = []
     for via_router in routes:
         for kind, b, every in cases:
             runs = [run_case(kind, via_router, duration, "0", want_latency=False, batch=b, solution_every=every)
                     for _ in range(repeat)]
             rates = sorted(r["rate_per_s"] for r in runs)
+            cpu = statistics.median(r["cpu_us_per_sample"] for r in runs)
             r = {"test": "throughput", **runs[0], "rate_per_s": int(statistics.median(rates)), "rates": rates,
+                 "cpu_us_per_sample": cpu,
                  "lost": sum(x["lost"] for x in runs), "gap": sum(x["gap"] for x in runs),
                  "duplicate": sum(x["duplicate"] for x in runs)}
             del r["wall_s"], r["imu_samples"]
             results.append(r)
             sols = f" (1 solution in {every})" if every > 1 else ""
-            print(f"throughput {r['via']:<13} ingest -> {kind:<5} batch {b:>3}{sols}: median {r['rate_per_s']:>7} "
-                  f"IMU/s over {len(runs)} runs (range {rates[0]}-{rates[-1]}; {runs[0]['expected']} samples each, "
+            print(f"throughput {r['via']:<13} ingest -> {kind:<12} batch {b:>3}{sols}: median {r['rate_per_s']:>7} "
+                  f"IMU/s over {len(runs)} runs (range {rates[0]}-{rates[-1]}; consumer CPU {cpu:.1f} us/sample; "
+                  f"{runs[0]['expected']} samples each, "
                   f"lost {r['lost']}, gaps {r['gap']}, duplicates {r['duplicate']})", flush=True)
     return results
 
@@ -330,13 +347,14 @@ def summary(results: list[dict]) -> None:
     """The medians beside issue 17's targets (peer-to-peer, the best batch size measured)."""
     print("\nissue 17 targets (peer-to-peer; medians):")
     for kind, target in TARGETS.items():
-        rows = [r for r in results if r["test"] == "throughput" and r["consumer"] == kind
+        rows = [r for r in results if r["test"] == "throughput" and r["consumer"] in (kind, f"{kind}-compiled")
                 and r["via"] == "peer-to-peer" and r["solution_every"] == 1]  # a solution per sample
         if rows:
             best = max(rows, key=lambda r: r["rate_per_s"])
             clean = all(r["lost"] == r["gap"] == r["duplicate"] == 0 for r in rows)
-            side = ", ".join(f"batch {r['batch']}: {r['rate_per_s']}" for r in rows)
-            print(f"  {kind:<6} >= {target:>6} IMU/s: {best['rate_per_s']:>7} at batch {best['batch']} "
+            side = ", ".join(f"{r['consumer']} batch {r['batch']}: {r['rate_per_s']}" for r in rows)
+            print(f"  {kind:<6} >= {target:>6} IMU/s: {best['rate_per_s']:>7} ({best['consumer']}, "
+                  f"batch {best['batch']}) "
                   f"({'met' if best['rate_per_s'] >= target else 'NOT met'}; {side}; "
                   f"{'nothing' if clean else 'SAMPLES'} lost or duplicated)")
     for r in results:
@@ -359,6 +377,8 @@ def main() -> int:
                     help="also the ins (batched) publishing one solution in this many samples (1: not)")
     ap.add_argument("--router", action="store_true", help="also every case through a router")
     ap.add_argument("--no-learn", action="store_true", help="skip the learning-loop case")
+    ap.add_argument("--no-compiled", action="store_true", help="skip the zennav-ins --compiled case")
+    ap.add_argument("--consumers", default=None, help="comma-separated consumers to run (default: all not skipped)")
     ap.add_argument("--only", default=None, choices=("throughput", "latency", "stages"), help="run one part")
     ap.add_argument("--json", default=None, help="also write the results here")
     args, rest = ap.parse_known_args()
@@ -371,10 +391,13 @@ def main() -> int:
             c = stage_costs(min(args.duration, 120.0), b)
             results.append({"test": "stages_us_per_sample", **c})
             print(f"stages (us per IMU sample, in-process, batch {b:>3}): decode+validate {c['decode_validate']}, "
-                  f"merge {c['merge']}, ins whole path {c['ins']} (engine included), solution build+encode "
-                  f"{c['solution_msg']}", flush=True)
+                  f"merge {c['merge']}, ins whole path {c['ins']} (engine included)"
+                  + (f", with --compiled {c['ins_compiled']}" if "ins_compiled" in c else "")
+                  + f", solution build+encode {c['solution_msg']}", flush=True)
     if args.only in (None, "throughput"):
-        kinds = ["bus", "ins"] + ([] if args.no_learn else ["learn"])
+        kinds = ["bus", "ins"] + ([] if args.no_compiled or args.batch <= 1 else ["ins-compiled"]) + \
+            ([] if args.no_learn else ["learn"])
+        kinds = [k for k in kinds if args.consumers is None or k in args.consumers.split(",")]
         results += throughput(kinds, routes, args.duration, args.batch, args.repeat, args.solution_every)
     if args.only in (None, "latency"):
         results += latency(routes, args.latency_duration, args.repeat)

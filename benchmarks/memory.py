@@ -5,11 +5,14 @@
    of 200 Hz, GNSS withheld 20 s every 120 s, as fast as the ins drains), zennav-ins --learning, zennav-predictor,
    zennav-trainer (signing off, CPU), zennav-attitude. Max RSS of every service process (wait4's ru_maxrss after
    it exits: exact), of the processes they start (the trainer's fit worker: VmHWM from /proc, read every 0.2 s
-   until it exits), and whether torch is mapped into the ins or the predictor (it must never be).
+   until it exits), and whether torch is mapped into the ins or the predictor (it must never be). --compiled: a
+   second ins beside it, learning off, with ``zennav-ins --compiled`` (numba's block loop), on the same stream
+   (``--batch``: IMU samples per message).
 2. ``zennav replay sim:car -o duration_s=1800`` (30 min at 200 Hz, --replay-duration): max RSS of the command.
 Targets (issue 17): ins <= 200 MB, predictor <= 120 MB, replay of 30 min at 200 Hz <= 1 GB.
 
-    .venv/bin/python benchmarks/memory.py [--duration 600] [--replay-duration 1800] [--json out.json]
+    .venv/bin/python benchmarks/memory.py [--duration 600] [--replay-duration 1800] [--compiled] [--batch 1]
+        [--json out.json]
 """
 from __future__ import annotations
 
@@ -84,7 +87,7 @@ class Watch:
                     self.children[k] = max(self.children.get(k, 0), status_kb(c, "VmHWM"))
 
 
-def edge_set(duration: float) -> dict:
+def edge_set(duration: float, compiled: bool = False, batch: int = 1) -> dict:
     from zennav.bus import Bus
 
     procs = Procs()
@@ -105,11 +108,17 @@ def edge_set(duration: float) -> dict:
                      *bus_args], "trainer")
         procs.start([PY, "-m", "zennav.services.attitude", *bus_args], "attitude")
         procs.start([PY, "-m", "zennav.services.ins", "--learning", *bus_args], "ins")
-        if not bus.wait_alive(["ins", "predictor", "trainer", "attitude"], 120):
+        wait = ["ins", "predictor", "trainer", "attitude"]
+        if compiled:
+            procs.start([PY, "-m", "zennav.services.ins", "--compiled", "--nav-prefix", "compiled", "--name",
+                         "ins-compiled", *bus_args], "ins-compiled")
+            wait.append("ins-compiled")
+        if not bus.wait_alive(wait, 120):
             tails = " | ".join(procs.log_tail(n, 400) for n in procs.names)
             raise RuntimeError(f"the edge set did not come up: {tails}")
         procs.start([PY, "-m", "zennav.services.ingest", "sim:car", "-o", f"duration_s={duration}", "--speed", "0",
-                     "--outage-every", OUTAGES, "--wait-for", "ins,attitude", *bus_args], "ingest")
+                     "--batch", str(batch), "--outage-every", OUTAGES, "--wait-for", ",".join(wait[:1] + wait[3:]),
+                     *bus_args], "ingest")
         if not done.wait(duration * 3 + 300):
             raise RuntimeError("stream did not finish: " + procs.log_tail("ingest") + procs.log_tail("ins"))
         time.sleep(2.0)  # the trainer's last fit, the predictor's last answers
@@ -139,11 +148,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds streamed to the edge set")
     ap.add_argument("--replay-duration", type=float, default=1800.0, help="simulated seconds replayed (0: skip)")
+    ap.add_argument("--compiled", action="store_true", help="also an ins --compiled (learning off) on the stream")
+    ap.add_argument("--batch", type=int, default=1, help="IMU samples per ingest message (zennav-ingest --batch)")
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args()
-    res = {"edge_set": edge_set(args.duration)}
+    res = {"edge_set": edge_set(args.duration, args.compiled, args.batch)}
     e = res["edge_set"]
-    print(f"edge set, {args.duration:g} s of 200 Hz streamed (ins --learning, predictor, trainer, attitude, ingest):")
+    print(f"edge set, {args.duration:g} s of 200 Hz streamed, batch {args.batch} (ins --learning, predictor, trainer, "
+          f"attitude, ingest{', ins --compiled' if args.compiled else ''}):")
     for name, b in e["max_rss_bytes"].items():
         t = TARGETS_MB.get(name)
         goal = f" (target <= {t} MB: {'met' if b / MB <= t else 'NOT met'})" if t else ""

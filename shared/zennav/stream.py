@@ -117,14 +117,18 @@ class StreamFollower:
     on_resume(start): a stream resumed from a checkpoint (``resume``) gets its first message.
     takeover_after_s: another source's stream_start replaces a live stream only after this long [s, wall clock]
     without a message of it (inf: only after its end); max_step_s: the most a sample may run ahead of the
-    stream's time per cseq [s]; max_hold, timeout_s: the merge's reorder window (zennav.messages.SequenceMerger)."""
+    stream's time per cseq [s]; max_hold, timeout_s: the merge's reorder window (zennav.messages.SequenceMerger).
+    on_flush(): called at the end of every call that may have handed samples on (on_message, tick, backfill): a
+    consumer that collects samples (the ins's block loop over an imu_batch) processes them there."""
 
     def __init__(self, on_start: Callable, on_sample: Callable, on_end: Callable,
                  fetch_start: Callable[[str], dict | None] | None = None, log: logging.Logger | None = None,
                  retry_every: int = 1000, max_hold: int = 1 << 16, timeout_s: float = 5.0,
-                 takeover_after_s: float = 10.0, max_step_s: float = 1.0, on_resume: Callable | None = None):
+                 takeover_after_s: float = 10.0, max_step_s: float = 1.0, on_resume: Callable | None = None,
+                 on_flush: Callable[[], None] | None = None):
         self.on_start, self.on_sample, self.on_end = on_start, on_sample, on_end
         self.on_resume = on_resume
+        self.on_flush = on_flush or (lambda: None)
         self.fetch_start = fetch_start
         self.log = log or logging.getLogger("zennav.stream")
         self.retry_every = retry_every
@@ -178,6 +182,7 @@ class StreamFollower:
         try:
             for m in M.samples(msg):
                 merger.push(m["cseq"], (key, m), self._release)
+            self.on_flush()
         finally:
             self._busy = False
 
@@ -191,6 +196,7 @@ class StreamFollower:
         right before the end), see zennav.messages.SequenceMerger.expire."""
         if self.merger is not None and not self.done and not self._busy:  # busy: a sample waits (lockstep)
             self.merger.expire(self._release)
+            self.on_flush()
 
     def hole(self, after_s: float) -> tuple[int, int] | None:
         """The cseqs (first, last) the live stream's samples have waited for at least after_s [s]; None when there
@@ -235,6 +241,7 @@ class StreamFollower:
             self.log.warning("backfill: cseq %d..%d no longer in the ingest's history: skipped", m.next,
                              m.next + gone - 1)
             m.skip_to(m.next + gone, self._release)
+            self.on_flush()
         for key, msg in got:
             self.on_message(key, msg)
 

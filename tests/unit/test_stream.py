@@ -213,21 +213,27 @@ def test_ins_resumed_from_a_checkpoint_continues_as_the_replay(tmp_path):
     """An ins that checkpoints every 5 s of data, killed after 20 s (its object dropped), and a new one started
     with the same checkpoint file that gets the stream from before the checkpoint again (as from the ingest's
     cache): the new one resumes at the checkpoint and its solutions are the replay's, bit for bit."""
+    ds = load_dataset("sim:car", duration_s=40.0)
+    first = _resumed(ds, _msgs(ds, outages=[(25.0, 8.0)]), tmp_path, 3000)
+    assert first.checkpoint.written == 3
+
+
+def _resumed(ds, msgs, tmp_path, back: int, block_loop=None):
+    """An ins checkpointing every 5 s of data, fed msgs up to 20 s of data, and a new one with the same checkpoint
+    file fed the stream from ``back`` messages before that on (duplicates for the merge): asserts that the new one
+    resumed and that its solutions are the replay's (outage 25..33 s), bit for bit. Returns the first ins."""
     from zennav.checkpoint import Checkpointer
     from zennav.nodes.ins import InsNode
 
-    ds = load_dataset("sim:car", duration_s=40.0)
-    msgs = _msgs(ds, outages=[(25.0, 8.0)])
     path = tmp_path / "ins.ckpt"
-    first = InsNode(lambda kind, m: None, log, checkpoint=Checkpointer(path, 5.0))
+    first = InsNode(lambda kind, m: None, log, checkpoint=Checkpointer(path, 5.0), block_loop=block_loop)
     cut = next(i for i, (_k, m) in enumerate(msgs) if m["t_ns"] > ds.initial.t_ns + 20 * 10**9)
     for key, m in msgs[:cut]:
         first.on_sensor(key, m)
-    assert first.checkpoint.written == 3
     sols: dict = {}
     second = InsNode(lambda kind, m: sols.__setitem__(m["t_ns"], m) if kind == "solution" else None, log,
-                     checkpoint=Checkpointer(path, 5.0))
-    for key, m in msgs[cut - 3000:]:  # from before the checkpoint: duplicates for the merge
+                     checkpoint=Checkpointer(path, 5.0), block_loop=block_loop)
+    for key, m in msgs[cut - back:]:
         second.on_sensor(key, m)
     assert second.recovery["resumed"] == 1 and second.follower.done
     ref = run_replay(ds, outages=[(25.0, 8.0)])
@@ -235,6 +241,7 @@ def test_ins_resumed_from_a_checkpoint_continues_as_the_replay(tmp_path):
     keep = ref.t_ns >= t[0]
     assert np.array_equal(t, ref.t_ns[keep]) and t[0] < msgs[cut][1]["t_ns"]
     assert np.array_equal(np.array([sols[x]["llh"] for x in t]), ref.llh[keep])
+    return first
 
 
 class _Loopback:
@@ -315,3 +322,39 @@ def test_what_the_ingest_no_longer_has_is_a_counted_gap(tmp_path):
     st = second.follower.status()
     assert st["done"] and st["backfill_empty"] > 0 and st["gap"] == st["backfill_empty"], st
     assert st["backfilled"] > 0 and second.recovery["realigned"] == 1
+
+
+def test_block_loop_publishes_the_step_wise_solutions_and_resumes(tmp_path, monkeypatch):
+    """imu_batch messages of 50 samples through the ins's block loop (as Python: the compiled loop's code): every
+    solution (with its velocity and attitude 1-sigma across covariance propagations) and aid report equals the
+    step-wise ins's, across a GNSS outage, and as many checkpoints are written; the block loop did run most samples;
+    a new block-loop ins resumed from its checkpoint navigates on as the replay, bit for bit."""
+    from zennav.checkpoint import Checkpointer
+    from zennav.nav.navigator import Navigator
+    from zennav.nodes.ins import InsNode
+
+    ran = [0]
+    run_imu = Navigator.run_imu
+
+    def counted(self, *a, **kw):
+        k = run_imu(self, *a, **kw)
+        ran[0] += max(0, k - a[3])
+        return k
+
+    monkeypatch.setattr(Navigator, "run_imu", counted)
+    ds = load_dataset("sim:car", duration_s=40.0)
+    msgs = _msgs(ds, outages=[(25.0, 8.0)], batch=50)
+    out: dict = {None: [], "python": []}
+    nodes = {b: InsNode(lambda kind, m, b=b: out[b].append((kind, m)), log, block_loop=b,
+                        checkpoint=Checkpointer(tmp_path / f"{b}.ckpt", 5.0)) for b in out}
+    for key, m in msgs:
+        for node in nodes.values():
+            node.on_sensor(key, m)
+    step, block = out[None], out["python"]
+    sols = [m for kind, m in step if kind == "solution"]
+    assert len(sols) == nodes[None].imu_count == msgs[0][1]["counts"]["imu"] and ran[0] > 0.8 * len(sols)
+    assert [m for kind, m in block if kind == "solution"] == sols
+    assert [m for kind, m in block if kind == "aid"] == [m for kind, m in step if kind == "aid"]
+    assert nodes["python"].checkpoint.written == nodes[None].checkpoint.written >= 7
+
+    _resumed(ds, msgs, tmp_path, 60, "python")

@@ -21,6 +21,8 @@ Wiring table
     publishers keep a cache for subscribers that recover what they missed (a router restart, a restarted
     predictor).
     <nav> is <base>/nav, or <base>/nav/<prefix> with --nav-prefix (a second ins beside the first on one stream).
+    With --compiled the IMU samples of an imu_batch message run through the engine's block loop compiled by numba
+    (zennav.nodes.ins; the same solutions; numba costs resident memory, benchmarks/memory.py).
 
 The core is zennav.nodes.ins.InsNode. Filter settings come from the parameter file (--params, default
 deploy/ins.yaml, zennav.params), never from the stream: followed from its start, the solution is the in-process
@@ -74,6 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "bit for bit; not for live vehicles)")
     p.add_argument("--lockstep-timeout", type=float, default=300.0,
                    help="longest wait [s] for the answers to one sample's queries (counted: lockstep_timeouts)")
+    p.add_argument("--compiled", action="store_true",
+                   help="run the IMU samples of each imu_batch message through the engine's block loop compiled by "
+                        "numba (the same solutions; the engine's CPU per sample about 15x less, the whole ins's about "
+                        "2.5x with a solution per sample, benchmarks/bus_throughput.py; numba and the kernels add "
+                        "about 115 MB resident memory, benchmarks/memory.py; compiled once per machine, loaded in "
+                        "about a second; not with --learning, whose tap takes every sample step-wise)")
     p.add_argument("--attitude-alignment", action="store_true",
                    help="take roll/pitch from the attitude service during coarse alignment (heading unknown)")
     p.add_argument("--attitude-tilt-std", type=float, default=1.0,
@@ -101,7 +109,14 @@ def main(argv=None) -> int:
         out = M.Keys(run.keys.vehicle, args.nav_prefix)
     except (ParamError, ValueError) as e:
         return run.fail(f"bad ins parameters: {e}")
+    if args.compiled and args.learning:
+        return run.fail("--compiled: not with --learning (the learning tap takes every sample step-wise)")
     import zennav.nav.navigator  # noqa: F401  (import the core, scipy included, before announcing)
+
+    if args.compiled:  # load (or compile, once per machine) the block loop before announcing
+        from zennav.nav import kernels
+
+        kernels.compiled()
     k, bus = run.keys, run.bus
     cache = args.recovery_cache
     pubs = {"solution": bus.cached_publisher(out.nav_solution(), cache) if cache > 0 else
@@ -133,7 +148,8 @@ def main(argv=None) -> int:
                    imu_key=k.imu(args.imu_id), gnss_key=k.gnss(args.gnss_id),
                    checkpoint=Checkpointer(args.checkpoint, args.checkpoint_every), bridge_max_s=args.bridge_max,
                    takeover_after_s=args.takeover_after,
-                   aid_keys={"dvl": k.dvl(args.dvl_id), "depth": k.depth(args.depth_id)})
+                   aid_keys={"dvl": k.dvl(args.dvl_id), "depth": k.depth(args.depth_id)},
+                   block_loop="compiled" if args.compiled else None)
     run.counters = lambda: {**node.counters(), "missed": sum(bus.missed.values())}
     on_sensor = lambda key, msg, recv_ns: node.on_sensor(key, msg)  # noqa: E731
     backfill = None

@@ -5,6 +5,7 @@ every value round-trips bit for bit. Integers (times, counts) are msgpack intege
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import MISSING, fields, is_dataclass
 from typing import Any
 
@@ -18,9 +19,18 @@ class ValidationError(ValueError):
     pass
 
 
+_packers = threading.local()  # one msgpack Packer per thread (a Packer is not thread-safe)
+
+
 def encode(msg: Any) -> bytes:
-    """msgpack map -> bytes (float64 kept as float64, strings as str, bytes as bin)."""
-    return msgpack.packb(msg, use_bin_type=True)
+    """msgpack map -> bytes (float64 kept as float64, strings as str, bytes as bin). The thread's Packer is reused
+    (it keeps a buffer the size of the largest message it packed): msgpack.packb builds one, with a 256 KiB buffer,
+    per call, a third of the cost of encoding a solution message."""
+    try:
+        packer = _packers.packer
+    except AttributeError:
+        packer = _packers.packer = msgpack.Packer(use_bin_type=True)
+    return packer.pack(msg)
 
 
 def decode(payload: bytes) -> Any:

@@ -142,12 +142,21 @@ def nav_solution_msg_of(nav, imu_cseq: int = -1, imu_pub_ns: int = 0) -> dict:
     state's floats directly (the same values as ``nav_solution_msg(nav.solution())``,
     tests/unit/test_messages.py checks it)."""
     s = nav.state
-    return make("nav_solution", nav.t_ns, llh=[s.lat, s.lon, s.h], v_n=[s.vn, s.ve, s.vd],
-                q_nb=[s.q0, s.q1, s.q2, s.q3], euler=euler_list(s.q0, s.q1, s.q2, s.q3),
-                gyro_bias=_as_list(nav.gyro_bias), accel_bias=_as_list(nav.accel_bias),
-                std_pos_ned=_as_list(nav.std_pos_ned), std_v_n=_as_list(nav.std_v_n),
-                std_euler=_as_list(nav.std_att), gnss_state=str(nav.gnss_state), imu_cseq=int(imu_cseq),
-                imu_pub_ns=int(imu_pub_ns))
+    return nav_solution_msg_of_row(nav, nav.t_ns, (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3),
+                                   _as_list(nav.std_pos_ned), _as_list(nav.std_v_n), _as_list(nav.std_att),
+                                   imu_cseq, imu_pub_ns)
+
+
+def nav_solution_msg_of_row(nav, t_ns: int, row, std_pos_ned: list, std_v_n: list, std_euler: list,
+                            imu_cseq: int, imu_pub_ns: int) -> dict:
+    """nav_solution at t_ns [ns] of the navigation state row (lat, lon [rad], h [m], v_n [m/s, NED], q_nb: 10
+    floats, a row of the engine's block loop Navigator.run_imu) with its 1-sigma [m, m/s, rad] and the Navigator's
+    biases and GNSS state (constant over a block)."""
+    lat, lon, h, vn, ve, vd, q0, q1, q2, q3 = row
+    return make("nav_solution", t_ns, llh=[lat, lon, h], v_n=[vn, ve, vd], q_nb=[q0, q1, q2, q3],
+                euler=euler_list(q0, q1, q2, q3), gyro_bias=_as_list(nav.gyro_bias),
+                accel_bias=_as_list(nav.accel_bias), std_pos_ned=std_pos_ned, std_v_n=std_v_n, std_euler=std_euler,
+                gnss_state=str(nav.gnss_state), imu_cseq=int(imu_cseq), imu_pub_ns=int(imu_pub_ns))
 
 
 def attitude_msg(t_ns: int, q_nb: list, gyro_bias: list, weight: float, omega_in_n, accel_b=None,

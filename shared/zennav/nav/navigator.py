@@ -375,6 +375,17 @@ class Navigator:
             f_b /= 1.0 + self.aug_value(self._scale[1])
         return omega_ib_b, f_b, dt
 
+    def covariance_due(self, t_ns: list, k0: int, k1: int) -> int:
+        """Index after the first of the IMU samples t_ns[k0:k1] [ns] after which the covariance is propagated
+        (cov_interval_s of IMU time summed, as _advance and kernels.run_block sum it); k1 when none is."""
+        cdt, t_prev, interval = self._cov_dt, self.t_ns, self.config.cov_interval_s
+        for k in range(k0, k1):
+            cdt += (t_ns[k] - t_prev) / NS
+            if cdt >= interval and cdt > 0.0:
+                return k + 1
+            t_prev = t_ns[k]
+        return k1
+
     def solution(self) -> NavSolution:
         s = self.state
         q_nb = s.q_nb

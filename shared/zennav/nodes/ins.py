@@ -12,7 +12,10 @@ from it with the stream's messages since (fetched from the ingest's history, zen
 samples lost in a gap up to bridge_max_s are bridged (the next sample's rates held over the gap); after a
 longer gap the ins re-aligns as a late joiner. Learning (a LearningLink given; off by default): the engine
 emits training samples and queries (NavConfig.learning), the link publishes them and fuses the answers
-(zennav.learn.link).
+(zennav.learn.link). Block loop (``block_loop``, learning off): the IMU samples of one sensor message (an imu_batch)
+are collected and run through the engine's block loop (Navigator.run_imu: compiled by numba, or as Python), up to
+each covariance propagation, GNSS fix or sample the step-wise engine must take, which on_imu takes as without it;
+every sample's solution is the step-wise one, float for float.
 """
 from __future__ import annotations
 
@@ -21,6 +24,8 @@ import time
 from collections import Counter
 from dataclasses import replace
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from .. import messages as M
 from ..checkpoint import Checkpointer, CheckpointError
@@ -40,13 +45,15 @@ class InsNode:
     gnss_key / aid_keys ({"dvl": key, "depth": key}): the sensors it navigates with (None: any).
     DVL and depth samples (zennav.messages.AID_STREAMS) come before the IMU sample that reaches their time; they
     are held until it is processed and then go to ``Navigator.on_aid`` before its solution is published, as the
-    in-process replay hands them over (zennav.replay.run_replay)."""
+    in-process replay hands them over (zennav.replay.run_replay). block_loop: "compiled" (numba) or "python" runs
+    the IMU samples of one message through the engine's block loop (module docstring; None, or learning on: each
+    sample step-wise)."""
 
     def __init__(self, publish, log, filter_params: dict | None = None, solution_every: int = 1,
                  status_period_ns: int = 1_000_000_000, on_state=None, bus_rejected=None,
                  learning: LearningLink | None = None, fetch_start=None, imu_key=None, gnss_key=None,
                  checkpoint: Checkpointer | None = None, bridge_max_s: float = 0.5, takeover_after_s: float = 10.0,
-                 aid_keys: dict | None = None):
+                 aid_keys: dict | None = None, block_loop: str | None = None):
         self.publish, self.log = publish, log
         self.filter_params = dict(filter_params or {})
         self.learn = learning  # None: learning off (the default; the engine runs exactly as in the replay)
@@ -56,13 +63,18 @@ class InsNode:
         self.status_period_ns = status_period_ns
         self.keys = {"imu": imu_key, "gnss": gnss_key, **{a: None for a in M.AID_STREAMS}, **(aid_keys or {})}
         self.follower = StreamFollower(self._start, self._sample, self._end, fetch_start, log,
-                                       takeover_after_s=takeover_after_s, on_resume=self._resume)
+                                       takeover_after_s=takeover_after_s, on_resume=self._resume, on_flush=self._flush)
+        if block_loop not in (None, "compiled", "python"):
+            raise ValueError(f"block_loop {block_loop!r}: compiled, python or None")
+        self.block_loop = block_loop if learning is None else None  # the learning tap takes every sample step-wise
+        self._block: list[dict] = []  # IMU samples collected for the block loop (block_loop)
         self.on_sensor = self.follower.on_message
         self.nav: Navigator | None = None
         self.imu_count = self.gnss_count = self.sol_count = self.corrections = self.attitude_taken = 0
         self.aid_count: Counter[str] = Counter()  # aid samples consumed per stream (dvl, depth)
         self._held: list[dict] = []  # aid messages waiting for the IMU sample that reaches their time
         self.wall_s, self._wall0, self._next_status_t, self._states = 0.0, 0.0, 0, (None, None)
+        self.cpu_s, self._cpu0 = 0.0, 0.0  # [s] CPU time of this process (all threads) over the stream
         self._late = False  # this stream was joined late (its samples before the join are not ours)
         self.checkpoint = checkpoint or Checkpointer(None)
         self.bridge_max_ns = int(bridge_max_s * 1e9)
@@ -132,6 +144,7 @@ class InsNode:
         self._next_status_t = int(initial.t_ns) + self.status_period_ns
         self._states = (nav.gnss_state, nav.align_state)
         self._wall0, self.wall_s = time.perf_counter(), 0.0
+        self._cpu0, self.cpu_s = time.process_time(), 0.0
 
     def _bridge(self, msg: dict) -> dict | None:
         """An IMU sample after lost ones (its interval starts after the last one given to the engine): up to
@@ -154,6 +167,8 @@ class InsNode:
         assert nav is not None  # the follower hands samples only after on_start (_start) built the engine
         if self.keys[schema] not in (None, key):
             return
+        if schema != "imu":
+            self._flush()
         if schema == "gnss":
             self.gnss_count += 1
             nav.on_gnss(M.gnss_fix(msg))
@@ -164,12 +179,21 @@ class InsNode:
             self._held.append(msg)
             return
         if msg["t_ns"] - msg["dt_ns"] > self._t_imu:  # samples lost before this one
+            self._flush()
             bridged = self._bridge(msg)
             if bridged is None:
                 return
             msg = bridged
         self.imu_count += 1
         self._t_imu = msg["t_ns"]
+        if self.block_loop is not None and not self._held:
+            self._block.append(msg)
+            return
+        self._imu(nav, msg)
+
+    def _imu(self, nav: Navigator, msg: dict) -> None:
+        """One IMU sample step-wise (Navigator.on_imu), then what follows every sample: the held aid samples, the
+        reports, the learning link, the solution, the status and the checkpoint when due."""
         ok = nav.on_imu(msg["t_ns"], msg["dtheta"], msg["dvel"])  # False: rejected by the engine (counted)
         for held in self._held:
             nav.on_aid(held["schema"], M.aid_sample(held))
@@ -181,6 +205,11 @@ class InsNode:
             self.sol_count += 1
             if self.sol_count % self.solution_every == 0:
                 self.publish("solution", M.nav_solution_msg_of(nav, msg["cseq"], msg["pub_ns"]))
+        self._after(nav, msg)
+
+    def _after(self, nav: Navigator, msg: dict) -> None:
+        """After the IMU sample msg (or a block ending with it): the status when the GNSS or alignment state
+        changed or a status period passed, the checkpoint when due."""
         states = (nav.gnss_state, nav.align_state)
         if states != self._states or msg["t_ns"] >= self._next_status_t:
             self._states = states
@@ -189,6 +218,41 @@ class InsNode:
             self.publish("status", self.status_msg())
         if self.checkpoint.due(msg["t_ns"]):
             self._write_checkpoint(msg)
+
+    def _flush(self) -> None:
+        """The IMU samples collected for the block loop: run by Navigator.run_imu up to each covariance propagation
+        (Navigator.covariance_due: the velocity and attitude 1-sigma of the samples before it are the ones before
+        the block), each sample it leaves to the step-wise engine taken by _imu; a solution per sample."""
+        block, nav = self._block, self.nav
+        if not block:
+            return
+        self._block = []
+        assert nav is not None
+        n = len(block)
+        t = [m["t_ns"] for m in block]
+        t_ns = np.array(t, dtype=np.int64)
+        dtheta = np.array([m["dtheta"] for m in block], dtype=float)
+        dvel = np.array([m["dvel"] for m in block], dtype=float)
+        out_nav, out_std = np.empty((n, 10)), np.empty((n, 3))
+        jit, every = self.block_loop == "compiled", self.solution_every
+        k = 0
+        while k < n:
+            std_v, std_e = M.floats(nav.std_v_n), M.floats(nav.std_att)
+            k1 = nav.run_imu(t_ns, dtheta, dvel, k, nav.covariance_due(t, k, n), 2**62, out_nav, out_std, jit)
+            if k1 == k:  # the step-wise engine's sample (a fix in it, an outage declaration, a rejection, ...)
+                self._imu(nav, block[k])
+                k += 1
+                continue
+            for i, (row, std_pos) in enumerate(zip(out_nav[k:k1].tolist(), out_std[k:k1].tolist()), k):
+                self.sol_count += 1
+                if self.sol_count % every == 0:
+                    if i == k1 - 1:  # the last one: after a covariance propagation
+                        std_v, std_e = M.floats(nav.std_v_n), M.floats(nav.std_att)
+                    m = block[i]
+                    self.publish("solution", M.nav_solution_msg_of_row(nav, t[i], row, std_pos, std_v, std_e,
+                                                                       m["cseq"], m["pub_ns"]))
+            self._after(nav, block[k1 - 1])
+            k = k1
 
     def _write_checkpoint(self, msg: dict) -> None:
         """The state after msg (an IMU sample): the stream resumes at the next cseq (zennav.checkpoint)."""
@@ -205,7 +269,9 @@ class InsNode:
             self.log.error("checkpoint not written: %s", e)
 
     def _end(self, msg: dict) -> None:
+        self._flush()
         self.wall_s = time.perf_counter() - self._wall0
+        self.cpu_s = time.process_time() - self._cpu0
         c = msg["counts"]
         got = {"imu": self.imu_count, "gnss": self.gnss_count, **self._aid_counts()}
         complete = all(c.get(kind, 0) == n for kind, n in got.items())
@@ -253,7 +319,8 @@ class InsNode:
         nav = self.nav
         return M.nav_status_msg(
             nav.t_ns if nav is not None else 0, nav.status() if nav is not None else None,
-            {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s, **self.recovery},
+            {**self.follower.status(), "solutions": self.sol_count, "wall_s": self.wall_s, "cpu_s": self.cpu_s,
+             **self.recovery},
             {**self.bus_rejected(), **self.follower.counts}, self.imu_count, self.gnss_count,
             {"corrections_received": self.corrections,
              **(self.learn.status() if self.learn is not None else {"learning": False, "corrections_fused": 0})},
