@@ -61,6 +61,7 @@ def test_loop_refuses_queries_outside_the_training_range():
     comp = InProcessLoop("position", LearnSettings(model="elman", window=200, min_samples=100, threshold=10.0))
     x = rng.normal(size=(300, len(RATE_FEATURES)))
     comp.add([LearnSample(int(k * 5e8), "position", x[k], 0.1 * x[k, :2]) for k in range(300)])
+    comp.settle()  # the scheduled fits through these samples
     norm = comp.learner.elman.norm()
     inside = (norm["x_min"] + norm["x_max"]) / 2
     assert comp.predict(LearnQuery(0, "position", inside, 1.0)) is not None
