@@ -170,7 +170,8 @@ def run_replay(
     loop: how the IMU samples between two events run: "step" (on_imu, sample by sample), "compiled" (the stretches
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
     tests and debugging); None: "compiled" where ``use_jit`` says, else "step". The block loop runs only where the
-    run needs no step-wise hand-over (no compensator, no odometer stream, no smoothing); epoch_due() (optional) says
+    run needs no step-wise hand-over (no odometer stream, no smoothing; with a compensator, from one learning event
+    to the next: Navigator.run_imu); epoch_due() (optional) says
     from which IMU time on_epoch must see the epochs (None: every one); without it on_epoch sees every epoch and the
     run goes step by step; in the block loop on_epoch also sees the last epoch of each stretch."""
     target = getattr(compensator, "target", None)
@@ -193,10 +194,10 @@ def run_replay(
     aid_data = {kind: getattr(ds, kind) for kind in AID_STREAMS}
     held: list[tuple[str, int]] = []  # aid samples waiting for the IMU sample that reaches their time
     if loop is None:
-        loop = "compiled" if use_jit(ds, compensator) else "step"
+        loop = "compiled" if use_jit(ds) else "step"
     if loop not in ("step", "compiled", "python"):
         raise ValueError(f"loop: step, compiled or python, not {loop!r}")
-    blocks = loop != "step" and compensator is None and not streams and rec is None and (on_epoch is None or epoch_due)
+    blocks = loop != "step" and not streams and rec is None and (on_epoch is None or epoch_due)
     if blocks:
         if loop == "compiled":
             from .nav.kernels import compiled
@@ -282,15 +283,15 @@ def run_replay(
     return res
 
 
-def use_jit(ds: Dataset, compensator=None) -> bool:
+def use_jit(ds: Dataset) -> bool:
     """Whether run_replay compiles its loop: ZENNAV_JIT=1 always, 0 never; by default from JIT_MIN_S of IMU data on
-    and without a compensator (loading numba and the cached kernels takes about a second; the compiled loop saves
-    about 0.7 s of CPU per minute of 200 Hz data)."""
+    (loading numba and the cached kernels takes about a second; the compiled loop saves about 0.7 s of CPU per minute
+    of 200 Hz data), with a compensator too (its stretches run from one learning event to the next)."""
     flag = os.environ.get("ZENNAV_JIT", "")
     if flag in ("0", "1"):
         return flag == "1"
     t = ds.imu.t_ns
-    return compensator is None and len(t) > 1 and (int(t[-1]) - int(t[0])) / NS >= JIT_MIN_S
+    return len(t) > 1 and (int(t[-1]) - int(t[0])) / NS >= JIT_MIN_S
 
 
 class AidStreams:

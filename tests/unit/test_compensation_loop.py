@@ -61,6 +61,7 @@ def test_loop_refuses_queries_outside_the_training_range():
     comp = InProcessLoop("position", LearnSettings(model="elman", window=200, min_samples=100, threshold=10.0))
     x = rng.normal(size=(300, len(RATE_FEATURES)))
     comp.add([LearnSample(int(k * 5e8), "position", x[k], 0.1 * x[k, :2]) for k in range(300)])
+    comp.settle()  # the scheduled fits through these samples
     norm = comp.learner.elman.norm()
     inside = (norm["x_min"] + norm["x_max"]) / 2
     assert comp.predict(LearnQuery(0, "position", inside, 1.0)) is not None
@@ -246,3 +247,32 @@ def test_a_compensator_of_another_target_runs_without_the_drift_shadows(drive):
     assert any(r.source == "learned_body_velocity" and r.fused for r in res.reports)
     tap = engines[-1].tap
     assert tap is not None and not tap.drift and tap.shadows == []
+
+
+def test_block_loop_and_deferred_fits_give_the_step_wise_run_of_the_trainer(drive):
+    """With a compensator the block loop runs from one learning event to the next (Navigator.run_imu) and the
+    in-process loop makes its scheduled fits only when a set may be used (InProcessLoop.settle): the same rows,
+    reports, counters and sets as the step-wise run with a loop that fits as the samples arrive (the trainer)."""
+
+    class Eager(InProcessLoop):  # the trainer's cadence: every fit as soon as its samples are in
+        def add(self, samples):
+            super().add(samples)
+            self.settle()
+
+    settings = LearnSettings(model="elman", min_samples=100, retrain_samples=20)
+    step_loop, block_loop = Eager("body_velocity", settings), InProcessLoop("body_velocity", settings)
+    step = run_replay(drive, outages=[(180.0, 30.0)], compensator=step_loop, loop="step")
+    epochs: list[int] = []
+    block = run_replay(drive, outages=[(180.0, 30.0)], compensator=block_loop, loop="python",
+                       on_epoch=lambda nav: epochs.append(nav.t_ns), epoch_due=lambda: None)
+    assert len(epochs) < len(block.t_ns) // 10  # stretches, not samples
+    for a, b in ((step.t_ns, block.t_ns), (step.llh, block.llh), (step.v_n, block.v_n), (step.q_nb, block.q_nb),
+                 (step.std_pos_ned, block.std_pos_ned), (step.outage, block.outage)):
+        assert np.array_equal(a, b)
+    assert repr(step.status) == repr(block.status)
+    assert [vars(r) for r in step.reports] == [vars(r) for r in block.reports]
+    assert any(r.source == "learned_body_velocity" and r.fused for r in block.reports)
+    last_query = max(r.t_ns for r in block.reports if r.source == "learned_body_velocity")
+    assert block_loop.last_set is not None and block_loop.last_set["created_t_ns"] <= last_query  # none after it
+    assert step_loop.last_set is not None and step_loop.last_set["created_t_ns"] > last_query
+    assert block_loop.status() == step_loop.status()  # settled: the trainer's sets and counters

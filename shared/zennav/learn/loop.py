@@ -5,7 +5,10 @@ answers as trainer + predictor over the bus in lockstep. What ``zennav replay --
 The replay hands over the engine's samples (``add``) and queries (``predict`` -> (value, 1-sigma) or None). A query
 carries the count n of its target's samples so far: the learner fits through n if no set is through n yet (the
 first query of an outage, so the model includes the newest data), the core swaps the set in and answers with it.
-Scheduled fits (every retrain_samples samples) happen as the samples arrive, as in the trainer.
+The scheduled fits (every retrain_samples samples) are the trainer's; they are made when their sets may first be
+used, before the next query is answered (``settle``: before an answer, ``status`` and ``save_model``), in the
+trainer's order, so every answer, set and counter is the trainer's; a set that no query could use (the fits after
+a replay's last query) is never made unless asked for.
 
 A model trained on other runs (e.g. other trajectories of a vehicle: seed 003 trains at the surface, the A-KIT
 benchmark on other dives) goes from one loop to another as a parameter-set file (``save_model`` writes the last set,
@@ -42,7 +45,9 @@ class InProcessLoop:
         self.frozen = False  # a loaded model: no learning
         self.ignored = 0  # samples not learned by a frozen loop
 
-    def _fit_due(self) -> None:
+    def settle(self) -> None:
+        """Make every fit due so far (the trainer makes them as the samples arrive): version, last_set, core and
+        the learner's counters are then the trainer's."""
         while not self.frozen and (n := self.learner.due()) is not None:
             msg = self.learner.fit(n, self.version + 1)
             if msg is None:
@@ -57,7 +62,7 @@ class InProcessLoop:
         made."""
         if not self.frozen and self.learner.received >= self.learner.min_samples:
             self.learner.request(self.learner.received)
-            self._fit_due()
+            self.settle()
         if self.last_set is None:
             raise ValueError(f"no {self.target} model was trained: nothing to save")
         Path(path).write_bytes(paramset.encode(self.last_set))
@@ -81,7 +86,6 @@ class InProcessLoop:
                     self.ignored += 1
                 else:
                     self.learner.add(s.t_ns, s.features, s.value)
-        self._fit_due()
 
     def predict(self, query: LearnQuery) -> tuple[np.ndarray, tuple] | None:
         """The answer (value, 1-sigma per output) to a query, through the model trained through every sample so
@@ -92,7 +96,7 @@ class InProcessLoop:
         self.queries += 1
         if not self.frozen:
             self.learner.request(self.learner.received)
-            self._fit_due()
+            self.settle()
         out = self.core.answer(query.target, query.features, None if self.frozen else self.learner.received)
         if isinstance(out, str):
             self.last_refusal = out
@@ -104,6 +108,7 @@ class InProcessLoop:
         received, through, sets, fit_points, version, ...), "predictor" (PredictorCore: sets accepted / rejected,
         queries answered, refused per reason, late_model, live version) and "link" (queries sent; whether an
         answer was fused is the engine's: its learned_<target>_fused / rejection counters)."""
+        self.settle()
         return {"trainer": {**self.learner.counters(), f"version_{self.target}": self.version,
                             **({"frozen": 1, "ignored": self.ignored} if self.frozen else {})},
                 "predictor": self.core.counters(), "link": {"queries": self.queries}}

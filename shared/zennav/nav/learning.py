@@ -60,6 +60,7 @@ OUTPUTS = {"position": ("n", "e"), "velocity": ("n", "e"), "drift": ("n", "e"), 
 # feature columns scaled min-max to [0, 1] instead of z-scored (seed 003 step 3.1: lambda and R)
 MINMAX_FEATURES = {"dvl_beam": (1, 2)}
 BODY_EVERY_S = 1.0
+QUERY_MARGIN_S = 1e-3  # LearningTap.next_query_ns: far above the rounding of a window's summed dt [s]
 # Time between two answers of a target, for the correlation of their errors (zennav.learn.sigma.answer_lag); 0: the
 # next sample (rate targets: queries about as often as fixes; drift: samples of several shadows interleave).
 ANSWER_PERIOD_S = {"position": 0.0, "velocity": 0.0, "drift": 0.0, "body_velocity": BODY_EVERY_S, "dvl_beam": 0.0}
@@ -114,6 +115,13 @@ class FeatureWindow:
             q[4] += dtheta[1] * dtheta[1] / dt
             q[5] += dtheta[2] * dtheta[2] / dt
             self.dt += dt
+
+    def add_block(self, terms: np.ndarray) -> None:
+        """add() of n intervals at once: terms (n, 13) the rows of block_terms; the same floats (np.add.accumulate
+        sums in order, as add does)."""
+        start = np.array([*self.dtheta, *self.dvel, *self.sq, self.dt])
+        end = np.add.accumulate(np.vstack([start, terms]), axis=0)[-1].tolist()
+        self.dtheta[:], self.dvel[:], self.sq[:], self.dt = end[0:3], end[3:6], end[6:12], end[12]
 
     def get_state(self) -> dict:
         return {"dtheta": list(self.dtheta), "dvel": list(self.dvel), "sq": list(self.sq), "dt": self.dt,
@@ -208,6 +216,31 @@ class LearningTap:
         for sh in self.shadows:
             sh.advance(dtheta_raw, dvel_raw, dt)
 
+    def on_block(self, dtheta: np.ndarray, dvel: np.ndarray, dt: np.ndarray) -> None:
+        """on_step over n IMU intervals at once while no shadow INS runs (Navigator.run_imu): bias-corrected
+        increments (n, 3) [rad, m/s] over dt (n,) [s], each > 0."""
+        assert not self.shadows  # a shadow INS needs every sample (on_step)
+        terms = block_terms(dtheta, dvel, dt)
+        for w in (self.rate_window, self.body_window, self.since_fix):
+            w.add_block(terms)
+
+    def next_query_ns(self, t_ns: int, gnss_interval_s: float | None) -> int:
+        """A time [ns] before which maybe_query does nothing at the IMU samples after t_ns, whatever they are: each
+        window's dt grows by the time elapsed, so each condition of maybe_query is reached no earlier than its
+        shortfall after t_ns (less QUERY_MARGIN_S for the rounding of the sums). Navigator.run_imu runs the samples
+        before it in its block loop, without maybe_query."""
+        if not gnss_interval_s:
+            return 2**62
+        interval, since = gnss_interval_s, self.since_fix.dt
+
+        def after(s: float) -> float:  # t_ns + s [s] in ns, as a float
+            return t_ns + s * 1e9
+
+        rate = after(1.5 * interval - self.rate_window.dt)
+        drift = max(float(self.last_query_ns + self.sample_ns), after(interval - since))
+        body = max(after(self.body_every_s - self.body_window.dt), after(1.5 * interval - since))
+        return int(min(rate, drift, body) - QUERY_MARGIN_S * 1e9)
+
     def on_fix(self, t_ns: int, s: NavState, dx: np.ndarray, converged: bool, gyro_bias, accel_bias,
                prev_dtheta, prev_dvel) -> None:
         """A fused GNSS position fix at t_ns; dx: the error-state corrections of this fix; s: the filter state."""
@@ -286,6 +319,13 @@ class LearningTap:
             self.queries.append(LearnQuery(t_ns, "body_velocity", self.body_window.body_features(),
                                            self.body_window.dt))
             self.body_window = FeatureWindow()
+
+
+def block_terms(dtheta: np.ndarray, dvel: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """Per interval (n rows), what FeatureWindow.add adds: dtheta, dvel (n, 3) [rad, m/s], their squares over dt
+    (n,) [s] (dvel first, as FeatureWindow.sq) and dt: (n, 13)."""
+    dt_col = dt[:, None]
+    return np.hstack([dtheta, dvel, dvel * dvel / dt_col, dtheta * dtheta / dt_col, dt_col])
 
 
 def _body_features(sums, sq_sums, dt: float) -> np.ndarray:

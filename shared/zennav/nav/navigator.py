@@ -191,13 +191,18 @@ class Navigator:
         first sample that needs the step-wise engine: one at or after stop_ns or a queued GNSS fix (to fuse in it),
         one that a source's on_step acts on (the outage declaration, a constraint's update), one to reject.
         Row k of out_nav (N, 10: lat, lon, h, v_n, q_nb) and out_std (N, 3: position 1-sigma [m, NED]) is the solution
-        after sample k. Returns the index of the first sample not processed; k0 (none) while the engine takes every
-        sample step-wise: coarse alignment, learning, a smoother recorder, a source acting at any sample."""
-        if k0 >= k1 or self.alignment.coarse or self.tap is not None or self.recorder is not None:
+        after sample k. With learning, also before the first sample at which the tap may query
+        (LearningTap.next_query_ns); the tap's windows take the stretch's increments at once (LearningTap.on_block).
+        Returns the index of the first sample not processed; k0 (none) while the engine takes every sample step-wise:
+        coarse alignment, a shadow INS of the learning tap, a smoother recorder, a source acting at any sample."""
+        tap = self.tap
+        if k0 >= k1 or self.alignment.coarse or (tap is not None and tap.shadows) or self.recorder is not None:
             return k0
         gp = self.gnss_pos
         if self._pending:
             stop_ns = min(stop_ns, self._pending[0].t_ns)
+        if tap is not None:
+            stop_ns = min(stop_ns, tap.next_query_ns(self.t_ns, gp.interval_s))
         for src in self._step_sources:
             if src is not gp:
                 due = src.next_step_ns(self)
@@ -218,6 +223,13 @@ class Navigator:
                       float(self.config.cov_interval_s), out_nav, out_std)
         if k == k0:
             return k0
+        if tap is not None:  # the increments as _advance corrects them
+            dt_k = np.diff(np.concatenate(([self.t_ns], t_ns[k0:k]))) / NS
+            dth, dv = (d[k0:k] - np.array(b) * dt_k[:, None] for d, b in ((dtheta_b, self.gyro_bias),
+                                                                          (dvel_b, self.accel_bias)))
+            if self._scale is not None:
+                dth, dv = (d / (1.0 + self.aug_value(sl)) for d, sl in zip((dth, dv), self._scale))
+            tap.on_block(dth, dv, dt_k)
         t_before = int(t_ns[k - 2]) if k - 1 > k0 else self.t_ns
         self.t_ns = int(t_ns[k - 1])
         dt = (self.t_ns - t_before) / NS
