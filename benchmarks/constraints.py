@@ -6,14 +6,19 @@ rtklibexplorer (real car, MEMS IMU, RTK reference): GNSS withheld for L = 10, 30
 of that RMS against pure INS, and the RMS of the along-track and cross-track parts of each window's peak error
 (against the true course: the forward-speed and heading parts of the drift). Rows: pure INS; NHC; NHC+ZUPT;
 NHC+ZUPT with learned compensation (anfis, elman; each for --seeds, and their median; with --forward-only the
-learned body velocity gives the forward speed alone, NavConfig.learn_forward_only). Each row is one product run,
+learned body velocity gives the forward speed alone, NavConfig.learn_forward_only; with --where-better an output
+is fused only where its 1-sigma is below the filter's, NavConfig.learn_where_better). Under each learned run, its
+answers against the truth: the RMS error of the answered body velocity (forward, right, down) [m/s] against the
+true velocity in the solution's body frame at the query time, and the mean of (error / answered 1-sigma)^2 per
+output (about 1 for an honest 1-sigma, above 1: the filter weighs the answer too much). --per-window: each row's
+per-window maxima, in time order (a few windows: one bad window can set the RMS). Each row is one product run,
 the same as
     zennav replay rtklibexplorer --outage-every 90:L:120 --constraints nhc,zupt [--compensation anfis --seed S]
 sim:car (600 s, MEMS, its odometer 2 % fast with 0.05 m/s noise): the same windows, NHC+ZUPT without and with the
 odometer (scale-factor state estimated), and the scale factor's final estimate.
 
     .venv/bin/python benchmarks/constraints.py [--windows 10,30,60] [--seeds 0,1,2] [--jobs 2] [--no-learned]
-        [--datasets rtklibexplorer,sim:car] [--forward-only]
+        [--datasets rtklibexplorer,sim:car] [--forward-only] [--where-better] [--per-window]
 """
 from __future__ import annotations
 
@@ -31,8 +36,10 @@ LEARNED = ("anfis", "elman")
 
 
 def run(job: tuple) -> tuple:
-    """One product run: (spec, window length, constraint names, compensation, seed, learn_forward_only) -> (job,
-    per-window maxima, odometer scale (estimate, 1-sigma, truth) or None, wall s)."""
+    """One product run: (spec, window length, constraint names, compensation, seed, learned options
+    (NavConfig field names set true)) -> (job,
+    per-window maxima, along/cross parts, odometer scale (estimate, 1-sigma, truth) or None, the learned answers'
+    accuracy (answer_errors) or None, wall s)."""
     import torch
 
     from zennav.datasets.registry import load_dataset
@@ -44,22 +51,65 @@ def run(job: tuple) -> tuple:
     from zennav.replay_cli import filter_settings
 
     torch.set_num_threads(1)
-    spec, length, constraints, compensation, seed, forward_only = job
+    spec, length, constraints, compensation, seed, options = job
     wall = time.perf_counter()
     ds = load_dataset(spec)
     ds.config = nav_config(ds.config, filter_settings(spec, None, None, list(constraints))).with_(
-        learn_forward_only=forward_only)
+        **dict.fromkeys(options, True))
     compensator = make_compensator(compensation, "body_velocity", seed)
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
+    logged = None if compensator is None else AnswerLog(compensator)
     nav = Navigator(config, ds.initial)
-    res = run_replay(ds, outage_every=(PERIOD_S, length, FIRST_S), navigator=nav, compensator=compensator)
+    res = run_replay(ds, outage_every=(PERIOD_S, length, FIRST_S), navigator=nav, compensator=logged)
     drifts = [o["max_horizontal_m"] for o in evaluate(ds, res)["outages"]]
     parts = along_cross(ds, res)
     scale = None
     if "odo_scale" in nav.aug_blocks:
         sl = nav.aug_blocks["odo_scale"]
         scale = (float(nav.aug_value(sl)[0]), math.sqrt(nav.P[sl, sl][0, 0]), ds.notes.get("odo_scale_error"))
-    return job, drifts, parts, scale, time.perf_counter() - wall
+    return (job, drifts, parts, scale, answer_errors(ds, res, [] if logged is None else logged.answers),
+            time.perf_counter() - wall)
+
+
+class AnswerLog:
+    """An in-process learning loop (zennav.learn.loop.InProcessLoop) that keeps its answers: answers [(query t_ns,
+    value, 1-sigma)]."""
+
+    def __init__(self, loop):
+        self.loop, self.target, self.answers = loop, loop.target, []
+
+    @property
+    def last_refusal(self) -> str:
+        return self.loop.last_refusal
+
+    def add(self, samples) -> None:
+        self.loop.add(samples)
+
+    def predict(self, query):
+        out = self.loop.predict(query)
+        if out is not None:
+            self.answers.append((query.t_ns, *out))
+        return out
+
+
+def answer_errors(ds, res, answers) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """Body-velocity answers [(t_ns, value (3,) [m/s, FRD], 1-sigma (3,))] against the true velocity rotated into
+    the solution's body frame at the query time: (count, RMS error per output [m/s], mean (error / 1-sigma)^2 per
+    output). None without answers or true velocity."""
+    from zennav.nav.rotation import quat_to_dcm
+
+    truth = ds.truth
+    if not answers or truth is None or truth.v_n is None:
+        return None
+    t_ref = truth.t_ns.astype(float)
+    err, z2 = [], []
+    for t_ns, value, std in answers:
+        i = min(int(np.searchsorted(res.t_ns, t_ns)), len(res.t_ns) - 1)
+        v_n = np.array([np.interp(float(t_ns), t_ref, truth.v_n[:, k]) for k in range(3)])
+        e = np.asarray(value) - quat_to_dcm(res.q_nb[i]).T @ v_n
+        err.append(e)
+        z2.append((e / np.asarray(std)) ** 2)
+    return len(err), np.sqrt(np.mean(np.square(err), axis=0)), np.mean(z2, axis=0)
 
 
 def along_cross(ds, res) -> np.ndarray | None:
@@ -104,52 +154,62 @@ def main() -> None:
     ap.add_argument("--datasets", default="rtklibexplorer,sim:car")
     ap.add_argument("--forward-only", action="store_true",
                     help="learned rows fuse the forward body velocity alone (learn_forward_only)")
+    ap.add_argument("--where-better", action="store_true",
+                    help="learned rows fuse an output only where its 1-sigma is below the filter's"
+                         " (learn_where_better)")
+    ap.add_argument("--per-window", action="store_true", help="print each row's per-window maxima")
     args = ap.parse_args()
     lengths = [float(x) for x in args.windows.split(",")]
     seeds = [int(x) for x in args.seeds.split(",")]
     specs = args.datasets.split(",")
-    jobs = []
+    options = (("learn_forward_only",) if args.forward_only else ()) + (
+        ("learn_where_better",) if args.where_better else ())
+    jobs: list[tuple] = []
     for length in lengths:
         if "rtklibexplorer" in specs:
-            jobs += [("rtklibexplorer", length, cons, "none", 0, False) for _, cons in ROWS]
+            jobs += [("rtklibexplorer", length, cons, "none", 0, ()) for _, cons in ROWS]
             if not args.no_learned:
-                jobs += [("rtklibexplorer", length, ("nhc", "zupt"), model, s, args.forward_only)
+                jobs += [("rtklibexplorer", length, ("nhc", "zupt"), model, s, options)
                          for model in LEARNED for s in seeds]
         if "sim:car" in specs:
-            jobs += [("sim:car", length, cons, "none", 0, False) for _, cons in SIM_ROWS]
+            jobs += [("sim:car", length, cons, "none", 0, ()) for _, cons in SIM_ROWS]
     wall = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
-        results = {job: (drifts, parts, scale, w) for job, drifts, parts, scale, w in pool.map(run, jobs)}
+        results = {job: rest for job, *rest in pool.map(run, jobs)}
     print(f"GNSS withheld for L s every {PERIOD_S:g} s from {FIRST_S:g} s; per-window maximum horizontal drift [m]; "
           "along / cross: RMS of the along- and cross-track parts of each window's peak error [m]\neach row is the "
           f"product run  zennav replay DATASET --outage-every {PERIOD_S:g}:L:{FIRST_S:g} --constraints LIST "
-          "[--compensation MODEL --seed S]" + (" with learn_forward_only: true in --params FILE" if args.forward_only
-                                                else ""))
+          "[--compensation MODEL --seed S]" + "".join(f" with {o}: true in --params FILE" for o in options))
     for spec, rows in (("rtklibexplorer", ROWS), ("sim:car", SIM_ROWS)):
         if spec not in specs:
             continue
         print(f"\n{spec}\n{'window':>7}{'constraints':>14}{'learned':>14}{'windows':>9}{'RMS m':>9}{'max m':>9}"
               f"{'vs INS':>9}{'along m':>9}{'cross m':>9}")
         for length in lengths:
-            base = _stats(results[(spec, length, (), "none", 0, False)][0])[0]
+            base = _stats(results[(spec, length, (), "none", 0, ())][0])[0]
 
-            def line(label, learned, n, rms, mx, parts=None, base=base, length=length):
+            def line(label, learned, n, rms, mx, parts=None, base=base, length=length, drifts=None):
                 split = "" if parts is None else "".join(f"{np.sqrt(np.mean(p**2)):>9.2f}" for p in parts.T)
                 print(f"{length:>6.0f}s{label:>14}{learned:>14}{n:>9}{rms:>9.2f}{mx:>9.2f}"
                       f"{100.0 * (rms - base) / base:>8.0f}%{split}")
+                if args.per_window and drifts is not None:
+                    print(f"{'':>21}per window: {' '.join(f'{d:.2f}' for d in drifts)}")
 
             for label, cons in rows:
-                drifts, parts, scale, _ = results[(spec, length, cons, "none", 0, False)]
-                line(label, "", len(drifts), *_stats(drifts), parts)
+                drifts, parts, scale, _, _ = results[(spec, length, cons, "none", 0, ())]
+                line(label, "", len(drifts), *_stats(drifts), parts, drifts=drifts)
                 if scale is not None:
                     print(f"{'':>21}odometer scale error {100 * scale[0]:.3f} % +- {100 * scale[1]:.3f} % "
                           f"(simulated {100 * scale[2]:.3f} %)")
             if spec == "rtklibexplorer" and not args.no_learned:
                 for model in LEARNED:
-                    learned = [results[(spec, length, ("nhc", "zupt"), model, s, args.forward_only)] for s in seeds]
+                    learned = [results[(spec, length, ("nhc", "zupt"), model, s, options)] for s in seeds]
                     runs = [r[0] for r in learned]
-                    for s, (drifts, parts, _, _) in zip(seeds, learned):
-                        line("NHC+ZUPT", f"{model} s{s}", len(drifts), *_stats(drifts), parts)
+                    for s, (drifts, parts, _, acc, _) in zip(seeds, learned):
+                        line("NHC+ZUPT", f"{model} s{s}", len(drifts), *_stats(drifts), parts, drifts=drifts)
+                        if acc is not None:
+                            print(f"{'':>21}{acc[0]} answers: error RMS {np.array2string(acc[1], precision=2)} "
+                                  f"m/s, (error/sigma)^2 {np.array2string(acc[2], precision=2)} (fwd, right, down)")
                     stats = np.array([_stats(d) for d in runs])
                     line("NHC+ZUPT", f"{model} median", len(runs[0]), *np.median(stats, axis=0).tolist())
     print(f"\n{len(jobs)} runs in {time.perf_counter() - wall:.0f} s with {args.jobs} processes")

@@ -94,6 +94,7 @@ FILTER: dict[str, Param] = {
     "learn_horizon_s": Param("learning", "s"),
     "learn_answer_max_age_s": Param("learning", "s"),
     "learn_forward_only": Param("learning", "", "bool"),
+    "learn_where_better": Param("learning", "", "bool"),
     "dvl_answer_timeout_s": Param("learning", "s"),
     "dvl_anomaly_k_sigma": Param("learning", ""),
     "dvl_anomaly_probability": Param("learning", ""),

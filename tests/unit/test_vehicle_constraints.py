@@ -254,3 +254,23 @@ def test_learned_forward_only_leaves_the_lateral_and_vertical_to_the_nhc(car):
         lateral[forward_only] = np.abs(dv_b[1:])
     assert np.all(lateral[False] > 0.2 * sigma)
     np.testing.assert_allclose(lateral[True], 0.0, atol=0.01 * sigma)  # through P's correlations only
+
+
+def test_learned_where_better_fuses_only_the_outputs_the_model_knows_better(car):
+    """With learn_where_better, a learned body-velocity output is fused only where its 1-sigma is below the
+    filter's own 1-sigma of it: a sure forward and an unsure lateral and vertical answer move the forward body
+    velocity alone; an answer unsure in every output is not fused (counted learned_body_velocity_weak)."""
+    from zennav.nav.learning import LearnQuery
+
+    config = car.config.with_(learning=True, learn_where_better=True)
+    nav = Navigator(config, car.initial)
+    v_b0 = nav.state.C_nb.T @ nav.state.v_n
+    sigma = float(nav.std_v_n.min())
+    query = LearnQuery(nav.t_ns, "body_velocity", np.zeros(12), 1.0)
+    assert not nav.on_correction(query, v_b0 + sigma, np.full(3, 10.0 * sigma))
+    assert nav.counters["learned_body_velocity_weak"] == 1
+    np.testing.assert_allclose(nav.state.C_nb.T @ nav.state.v_n, v_b0, atol=1e-12)
+    assert nav.on_correction(query, v_b0 + sigma, np.array([0.5, 10.0, 10.0]) * sigma)
+    dv_b = nav.state.C_nb.T @ nav.state.v_n - v_b0
+    assert dv_b[0] > 0.5 * sigma
+    np.testing.assert_allclose(dv_b[1:], 0.0, atol=0.05 * sigma)  # through P's correlations only

@@ -298,6 +298,7 @@ class NavConfig:
     learn_drift: bool = True  # run the shadow INSs of the "drift" target's samples (off: none of its samples)
     learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
     learn_forward_only: bool = False  # with nhc: fuse only the forward output of the learned body velocity
+    learn_where_better: bool = False  # fuse a learned body-velocity output only where its 1-sigma is below the filter's
     # learned DVL beam errors (zennav.nav.dvl_anomaly): hold time [s] of a sample waiting for its answers; the
     # anomaly rule: k-sigma of the VB R, chi-square probability of lambda, persistence window and count [samples]
     dvl_learned: bool = False  # the tight DVL learns and compensates its beam errors (with learning; the service's)

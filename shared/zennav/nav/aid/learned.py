@@ -10,7 +10,15 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
   constraint already gives the lateral and vertical velocity, and fusing the learned ones as well would count that
   information twice). On the rtklibexplorer drive it does not help: the NHC+ZUPT drift is mostly along-track (a
   forward-speed error of at most about 1.2-1.7 m/s RMS over a window), while the learned forward speed is off by
-  2.5-5 m/s RMS on the held-out windows (benchmarks/constraints.py --forward-only).
+  2.5-5 m/s RMS on the held-out windows (benchmarks/constraints.py --forward-only). With
+  NavConfig.learn_where_better, an output is fused only where the answer's 1-sigma is below the filter's own 1-sigma
+  of it (sqrt of H P H^T): a model that claims to know less than the filter already knows adds almost nothing when
+  its errors are white, and harms when they are not (its forward speed is off by a bias that holds through an
+  outage, by 0.6-2.6 m/s per 60 s window on the rtklibexplorer drive, which the AR(1) inflation of
+  zennav.learn.sigma does not cover);
+  an answer with no such output is counted learned_body_velocity_weak. Measured there (seed 0, benchmarks/
+  constraints.py --where-better): the learned rows equal NHC+ZUPT within 0.1 m at 10, 30 and 60 s windows: no
+  longer worse at 30 and 60 s, and the gain of the plain fusion at 10 s is gone.
 
 An answer is fused only if no GNSS position fix was fused after its query's time (else learned_stale: the filter
 already knows better) and the query is at most NavConfig.learn_answer_max_age_s of data time old (else
@@ -39,6 +47,7 @@ class LearnedSource(AidSource):
         self.max_age_ns = int(config.learn_answer_max_age_s * NS)
         # rows of the body-velocity answer that are fused (FRD)
         self.body_rows = [0] if config.nhc and config.learn_forward_only else [0, 1, 2]
+        self.where_better = config.learn_where_better
 
     def on_input(self, nav, answer: tuple[LearnQuery, object, object]) -> bool:
         """answer: (query, value, std) with value and its 1-sigma std in the units of the target."""
@@ -60,6 +69,12 @@ class LearnedSource(AidSource):
         if self.target == "body_velocity":
             z, H = body_velocity_model(nav.state, value)
             rows = self.body_rows
+            if self.where_better:
+                P = nav.kf.P[:N_STATES, :N_STATES]
+                rows = [r for r in rows if std[r] ** 2 < float(H[r] @ P @ H[r])]
+                if not rows:
+                    nav.counters[f"{self.name}_weak"] += 1
+                    return False
             return nav.update(self, Measurement(query.t_ns, value, z[rows], H[rows], np.diag(np.square(std[rows]))))
         H = np.zeros((2, N_STATES))
         first = 3 if self.target == "velocity" else 0
