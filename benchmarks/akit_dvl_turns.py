@@ -28,6 +28,7 @@ from akit_dvl import METHODS, dvl_dead_reckoning, parse_trajectories, score
 
 from zennav.datasets.registry import akit_specs, load_dataset
 from zennav.nav import earth
+from zennav.nav.aid.dvl import DvlTight
 from zennav.nav.beams import beams_from_velocity, janus_directions
 from zennav.nav.navigator import Navigator
 from zennav.nav.rotation import euler_to_dcm
@@ -104,7 +105,9 @@ def delay_estimate(ds: Dataset, std_s: float) -> tuple[float, float, float]:
     ds = replace(ds, config=ds.config.with_(dvl_mode="tight", vb_dvl=False, dvl_delay_std_s=std_s))
     nav = Navigator(ds.config, ds.initial)
     s = score(ds, run_replay(ds, navigator=nav))
-    sl = nav.sources["dvl"].delay
+    src = nav.sources["dvl"]
+    assert isinstance(src, DvlTight) and src.delay is not None
+    sl = src.delay
     return s["drift_pct"], float(nav.aug_value(sl)[0]), float(np.sqrt(nav.P[sl.start, sl.start]))
 
 
