@@ -156,3 +156,6 @@ def test_tight_dvl_estimates_the_dvl_time_offset():
     assert abs(tau - 0.2) < 3.0 * sigma and sigma < 0.1, (tau, sigma)
     assert err < 2.0, err
     assert "dvl_delay" not in Navigator(ds.config.with_(dvl_delay_std_s=0.0), ds.initial).aug_blocks
+    other = Navigator(ds.config, ds.initial).sources["dvl"]  # a checkpoint carries the last DVL sample's v_d
+    other.set_state(src.get_state())
+    assert other.prev is not None and other.prev[0] == src.prev[0] and np.array_equal(other.prev[1], src.prev[1])
