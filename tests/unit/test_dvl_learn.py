@@ -139,6 +139,26 @@ def _dvl(nav, bias=(0.0, 0.0, 0.0, 0.0)):
     return DvlSample(nav.t_ns, beams, np.ones(4, dtype=bool))
 
 
+def test_training_target_is_the_beam_error_the_calibration_states_do_not_model():
+    """The target of a training sample is the measured beam minus the filter's predicted beam with its calibration
+    states: a beam bias the filter already estimates is not learned again (it would be corrected twice)."""
+    nav = _underwater_nav()
+    src = nav.sources["dvl"]
+    from zennav.nav.eskf import N_STATES
+    from zennav.nav.types import DvlSample
+
+    nav._aug_x[src.bias.start - N_STATES + 2] = 0.05  # the filter's estimate of beam 3's bias [m/s]
+    nav._aug_x[src.scale.start - N_STATES] = 0.01  # and of the scale-factor error
+    B = src.B
+    v_d = nav.state.C_nb.T @ nav.state.v_n
+    beams = 1.01 * (B @ v_d) + np.array([0.2, 0.0, 0.05, 0.0])  # beam 1: 0.2 m/s not modelled; beam 3: its bias
+    src._samples(nav, src.trial(nav, DvlSample(nav.t_ns, beams, np.ones(4, dtype=bool))))
+    samples = nav.pop_samples()
+    assert [s.target for s in samples] == ["dvl_beam"] * 4
+    np.testing.assert_allclose([float(s.value[0]) for s in samples], [0.2, 0.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose([float(s.features[0]) for s in samples], [-0.2, 0.0, 0.0, 0.0], atol=1e-9)
+
+
 def test_held_sample_is_fused_uncompensated_after_the_data_time_timeout():
     """Under water a DVL sample waits for its 4 beam answers; none comes: fused as measured after
     dvl_answer_timeout_s of data time, every beam counted no_answer."""

@@ -24,13 +24,14 @@ Body-velocity features (12): mean f_b [m/s^2] and omega_ib_b [rad/s] over the la
 whole GNSS intervals that cover it; a query: exactly that long) and their standard deviations over it: the
 vibration, which grows with a car's speed on the road (and a rotor's speed); not the INS's own velocity, which a
 model would learn to echo (it equals the target while GNSS is good).
-"dvl_beam" (seed 003, steps 2-4): per DVL beam, its error [m/s]: the measured beam velocity minus the beam
-velocity the reference motion gives. The seed takes the reference from a PHINS aided by GPS; here, at the surface,
-the GNSS-aided filter's own state is the reference (zennav.nav.aid.dvl_learned). Features (3), per beam i at a DVL
+"dvl_beam" (seed 003, steps 2-4): per DVL beam, its error [m/s]: the measured beam velocity minus the beam velocity
+the reference motion gives. The seed takes the reference from a PHINS aided by GPS; here, at the surface, the
+GNSS-aided filter's own state is the reference, its DVL calibration states (beam biases, scale, mounting) included,
+so the target is the error those states do not model (zennav.nav.aid.dvl_learned). Features (3), per beam i at a DVL
 update: the innovation of beam i [m/s], the Mahalanobis distance lambda_k = v' S^-1 v of the whole DVL innovation
 and the variational-Bayes estimate of R_ii [(m/s)^2]. Standardised as seed 003 step 3.1: the innovation z-scored,
-lambda and R min-max scaled to [0, 1] over the training samples (MINMAX_FEATURES). One model for the four beams
-(the seed's ANFIS has these three inputs), one query per beam (LearnQuery.beam). Samples only while GNSS is valid,
+lambda and R min-max scaled to [0, 1] over the training samples (MINMAX_FEATURES). One model for the four beams (the
+seed's ANFIS has these three inputs), one query per beam (LearnQuery.beam). Samples only while GNSS is valid,
 queries only while it is lost (zennav.nav.aid.dvl_learned emits both).
 Samples are emitted only after the filter converged; queries only while no GNSS is fused, every 1.5 GNSS
 intervals (rate targets), every second (drift) and every `body_every_s` once 1.5 GNSS intervals passed without

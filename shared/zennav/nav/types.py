@@ -367,6 +367,9 @@ class NavConfig:
     dvl_mount_std: float = math.radians(0.5)  # initial 1-sigma of each mounting-misalignment angle [rad] (0: none)
     dvl_mount_psd: float = 1e-6 * math.radians(1.0) ** 2  # PSD of its driving noise [rad^2/s]
     dvl_mount_tau_s: float = 100000.0  # its correlation time [s]
+    dvl_delay_std_s: float = 0.0  # initial 1-sigma of the DVL's time offset against the IMU [s] (0: no state)
+    dvl_delay_psd: float = 1e-6  # PSD of its driving noise [s^2/s]
+    dvl_delay_tau_s: float = 100000.0  # its correlation time [s]
     dvl_max_age_s: float = 0.2  # a sample older than this behind the IMU time is not fused [s]
     dvl_max_beam_mps: float = 10.0  # a valid beam faster than this (either sign) is malformed [m/s]
     # pressure depth with a bias state (zennav.nav.aid.depth)

@@ -22,6 +22,14 @@ vehicle navigation", J. Field Robotics 32(5)), whose point is what limits it her
 are observable against GNSS at the surface and in turns and speed changes (a constant beam bias is the same lateral
 velocity error at a constant speed); the roll misalignment only through a lateral or vertical velocity, about zero for
 a cruising AUV, so it stays near its prior.
+Time offset (dvl_delay_std_s > 0: augmented state "dvl_delay" (1) [s], first-order Gauss-Markov, NavConfig
+dvl_delay_*): a DVL sample stamped t measures the velocity of t - tau (processing latency, a residual clock skew).
+The predicted beams use the INS velocity interpolated linearly to t - tau between the INS's v_d at the previous DVL
+sample (after its update) and now, v_d(t - tau) ~ v_d_hat - tau a_d, a_d = (v_d_hat - v_d_prev) / (t - t_prev)
+(a_d = 0 for the first sample or after a gap over DELAY_MAX_GAP_S), so H has -(1 + k_hat) b_i' (I - [mu_hat x]) a_d
+in tau's column: the time-offset state of Li & Mourikis 2014 ("Online temporal calibration for camera-IMU
+systems", IJRR 33(7)) for a velocity sensor. Observable where the DVL-frame velocity changes (speed changes, the
+sideslip and heave of turns); stays at its prior on a straight, steady run.
 Tight coupling fuses each VALID beam as its own row: a missing beam is simply left out of H, so three, two (adjacent
 or opposite) or even one beam still aid the filter. The partial-beam case of each sample (zennav.nav.beams.beam_case:
 4, 3, 2_orthogonal, 2_parallel, 1, 0 valid beams) is counted (dvl_beams_<case>) and flagged in its status record
@@ -62,6 +70,8 @@ from ..types import NS, AlignState, DvlSample, NavConfig
 from ..vbkf import variational_r
 from .base import AidSource, Measurement
 from .vehicle import VehicleFrame
+
+DELAY_MAX_GAP_S = 2.5  # longest interval between DVL samples over which a_d is differenced [s] (a 1 Hz DVL: 2 misses)
 
 
 @dataclass
@@ -164,6 +174,8 @@ class DvlTight(_DvlSource):
         self.bias: slice | None = None  # where the beam biases, the scale factor and the misalignment sit in the
         self.scale: slice | None = None  # error state (attach); mount None: not estimated
         self.mount: slice | None = None
+        self.delay: slice | None = None  # the time-offset state (None: not estimated)
+        self.prev: tuple[int, np.ndarray] | None = None  # (t_ns, v_d_hat after its update) of the last DVL sample
 
     def attach(self, nav) -> None:
         cfg = self.config
@@ -174,12 +186,33 @@ class DvlTight(_DvlSource):
         if cfg.dvl_mount_std > 0.0:
             self.mount = nav.add_states("dvl_mount", np.full(3, cfg.dvl_mount_std), np.full(3, cfg.dvl_mount_psd),
                                         cfg.dvl_mount_tau_s)
+        if cfg.dvl_delay_std_s > 0.0:
+            self.delay = nav.add_states("dvl_delay", np.array([cfg.dvl_delay_std_s]), np.array([cfg.dvl_delay_psd]),
+                                        cfg.dvl_delay_tau_s)
+
+    def rate(self, nav, v_d: np.ndarray) -> np.ndarray:
+        """a_d [m/s^2]: the INS's DVL-frame velocity change since the previous DVL sample (module docstring)."""
+        if self.prev is None:
+            return np.zeros(3)
+        dt = (nav.t_ns - self.prev[0]) / NS
+        if not 0.0 < dt <= DELAY_MAX_GAP_S:
+            return np.zeros(3)
+        return (v_d - self.prev[1]) / dt
+
+    def mark(self, nav) -> None:
+        """Keep the INS's v_d at this DVL sample (after its update) for the next sample's a_d."""
+        if self.delay is not None:
+            self.prev = (int(nav.t_ns), self.frame.velocity(nav.state, nav.imu_rates()[0], nav.n_states)[0])
 
     def model(self, nav) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted beams (4,) [m/s] (1 + k_hat) B (I - [mu_hat x]) v_d_hat + bias_hat at the engine's state, and
-        their Jacobian H (4 x n_states)."""
+        """Predicted beams (4,) [m/s] (1 + k_hat) B (I - [mu_hat x]) (v_d_hat - tau_hat a_d) + bias_hat at the
+        engine's state, and their Jacobian H (4 x n_states)."""
         assert self.bias is not None and self.scale is not None  # attached by Navigator.add_source
         v_d, H_v = self.velocity(nav)
+        a_d = None
+        if self.delay is not None:
+            a_d = self.rate(nav, v_d)
+            v_d = v_d - float(nav.aug_value(self.delay)[0]) * a_d
         k = float(nav.aug_value(self.scale)[0])
         bias = nav.aug_value(self.bias)
         if self.mount is None:
@@ -192,6 +225,8 @@ class DvlTight(_DvlSource):
         H[:, self.scale] = Bv[:, None]
         if self.mount is not None:
             H[:, self.mount] = (1.0 + k) * (self.B @ skew(v_d))
+        if a_d is not None:
+            H[:, self.delay] = -(1.0 + k) * (B @ a_d)[:, None]
         return (1.0 + k) * Bv + bias, H
 
     def on_input(self, nav, sample: DvlSample) -> bool:
@@ -213,15 +248,18 @@ class DvlTight(_DvlSource):
         case = beam_case(valid)
         self.count_case(nav, case)
         if not valid.any():
-            return self.no_update(nav, int(sample.t_ns), case, [])
-        predicted, H = self.model(nav)
-        rows = np.flatnonzero(valid)
-        z = predicted[rows] - beams[rows]
-        R = np.diag(R_diag[rows])
-        faults = (f"beams_{case}", "valid_" + "".join("1" if v else "0" for v in valid)) + (
-            ("corrected",) if correction is not None else ())
-        return nav.update(self, Measurement(int(sample.t_ns), beams[rows], z, H[rows], R, faults=faults,
-                                            channels=tuple(int(r) for r in rows)))
+            fused = self.no_update(nav, int(sample.t_ns), case, [])
+        else:
+            predicted, H = self.model(nav)
+            rows = np.flatnonzero(valid)
+            z = predicted[rows] - beams[rows]
+            R = np.diag(R_diag[rows])
+            faults = (f"beams_{case}", "valid_" + "".join("1" if v else "0" for v in valid)) + (
+                ("corrected",) if correction is not None else ())
+            fused = nav.update(self, Measurement(int(sample.t_ns), beams[rows], z, H[rows], R, faults=faults,
+                                                 channels=tuple(int(r) for r in rows)))
+        self.mark(nav)
+        return fused
 
     def trial(self, nav, sample: DvlSample) -> BeamFeatures | None:
         """The sample's learning features (BeamFeatures) at the engine's state, nothing fused and the VB state
@@ -257,6 +295,15 @@ class DvlTight(_DvlSource):
                 R_diag[r] = self.R_beam * self.vb.ratio(int(r))
         return BeamFeatures(int(sample.t_ns), case, valid.copy(), kind, observed, predicted,
                             np.where(informed, nu, 0.0), lam, R_diag)
+
+    def get_state(self) -> dict:
+        prev = None if self.prev is None else {"t_ns": self.prev[0], "v_d": self.prev[1].tolist()}
+        return {**super().get_state(), "prev": prev}
+
+    def set_state(self, state: dict) -> None:
+        super().set_state(state)
+        prev = state.get("prev")
+        self.prev = None if prev is None else (int(prev["t_ns"]), np.array(prev["v_d"], dtype=float))
 
 
 class DvlLoose(_DvlSource):

@@ -5,10 +5,13 @@ refusals to Navigator.on_refusal.
 
 At the surface (GNSS valid, learning started): each DVL sample's features (DvlTight.trial: innovation_i, lambda, VB
 R_ii) become one training sample per measured beam (zennav.nav.learning "dvl_beam") with the beam's error as the
-target: measured beam minus B v_d of the filter's state before this sample is fused (no beam bias, no scale factor:
-the beam the reference motion gives). The seed takes that reference from a PHINS aided by GPS; here the GNSS-aided
-filter is the reference, so the errors it learns are those the GNSS-aided filter sees. The sample is then fused as
-measured.
+target: the measured beam minus the beam the filter predicts before this sample is fused, (1 + k_hat) b_i' (I -
+[mu_hat x]) v_d_hat + bias_hat_i, i.e. minus the beam's innovation. The seed takes the reference from a PHINS aided by
+GPS; here the GNSS-aided filter is the reference, and its calibration states (beam biases, scale factor, mounting)
+are part of it: the model learns only the error those states do not model, so that the compensation under water
+(subtracted from a beam that fuse again predicts with the same states) does not correct their part twice. While
+GNSS holds the INS velocity, that target is the beam's own error; the model maps the innovation-side features to it.
+The sample is then fused as measured.
 
 Under water (GNSS lost): the sample is held, one query per measured beam goes out (one model for the four beams, the
 seed's three inputs; the queries carry the beam index); when every queried beam is answered or refused, or when
@@ -65,7 +68,7 @@ class LearnedDvl(DvlTight):
         under_water = nav.gnss_state != "valid"
         if nav.tap is None or not under_water:
             if nav.tap is not None and nav.learning_started(int(sample.t_ns)):
-                self._samples(nav, sample, features)
+                self._samples(nav, features)
             return self.fuse(nav, sample)
         measured = np.array([k == "measured" for k in features.kind])
         if not measured.any():
@@ -75,13 +78,12 @@ class LearnedDvl(DvlTight):
             nav.tap.queries.append(LearnQuery(int(sample.t_ns), TARGET, _features(features, i), 0.0, int(i)))
         return False
 
-    def _samples(self, nav, sample: DvlSample, f: BeamFeatures) -> None:
-        """One training sample per measured beam: features and the beam's error against the filter's motion."""
-        beams, valid = self.beams_of(sample)
-        v_d, _ = self.velocity(nav)
-        error = beams - self.B @ v_d
-        for i in np.flatnonzero(valid & np.array([k == "measured" for k in f.kind])).tolist():
-            nav.tap.samples.append(LearnSample(int(sample.t_ns), TARGET, _features(f, i), np.array([error[i]])))
+    def _samples(self, nav, f: BeamFeatures) -> None:
+        """One training sample per measured beam: features and the beam's error against the filter's predicted beam
+        (its calibration states included: module docstring)."""
+        error = f.observed - f.predicted
+        for i in np.flatnonzero(np.array([k == "measured" for k in f.kind])).tolist():
+            nav.tap.samples.append(LearnSample(int(f.t_ns), TARGET, _features(f, i), np.array([error[i]])))
 
     def answer(self, nav, query: LearnQuery, value, std) -> bool:
         """The predicted error [m/s] of a held beam (Navigator.on_correction through DvlAnswers); releases the sample
