@@ -173,10 +173,9 @@ def run_replay(
 
     loop: how the IMU samples between two events run: "step" (on_imu, sample by sample), "compiled" (the stretches
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
-    tests and debugging), "background" (numba and the compiled kernels load in a thread while the
-    first stretch runs as Python, compiled from the next stretch on: the first samples without waiting for numba,
-    the same floats); None: "background" where
-    ``use_jit`` says, else "step". The block loop runs only where the
+    tests and debugging), "background" (numba and the compiled kernels load in a thread while the first stretch runs
+    as Python, compiled from the next stretch on: the first samples without waiting for numba, the same floats);
+    None: "background" where ``use_jit`` says, else "step". The block loop runs only where the
     run needs no step-wise hand-over (no odometer stream, no smoothing; with a compensator, from one learning event
     to the next: Navigator.run_imu); epoch_due() (optional) says
     from which IMU time on_epoch must see the epochs (None: every one); without it on_epoch sees every epoch and the
