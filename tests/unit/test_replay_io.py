@@ -62,7 +62,8 @@ def test_fixed_columns_are_the_percent_text():
     assert table_text(cols, fmts, ",") == "".join(",".join(fmts) % tuple(r) + "\n" for r in cols.tolist())
     cols[5, 2] = np.nan  # not finite, or another spec: Python's % for the whole table
     assert table_text(cols, fmts) == "".join(" ".join(fmts) % tuple(r) + "\n" for r in cols.tolist())
-    assert table_text(cols[:, :2], ["%.3e", "%.2f"]) == "".join("%.3e %.2f\n" % tuple(r) for r in cols[:, :2].tolist())
+    sci = ["%.3e", "%.2f"]
+    assert table_text(cols[:, :2], sci) == "".join(" ".join(sci) % tuple(r) + "\n" for r in cols[:, :2].tolist())
     assert table_text(np.empty((0, 2)), ["%.3f", "%.2f"], ns=np.empty(0, dtype=np.int64)) == ""
 
 
