@@ -6,10 +6,8 @@ Outage windows are given in seconds from the first IMU sample of the run (the in
 """
 from __future__ import annotations
 
-import logging
 import math
 import os
-import threading
 import time
 from bisect import bisect_right
 from collections.abc import Callable, Sequence
@@ -24,9 +22,8 @@ from .nav.navigator import AidReport, Navigator
 from .nav.smoother import Recorder, Smoothed, smooth, smooth_rows
 from .nav.types import NS, Dataset
 
-log = logging.getLogger(__name__)
-
 JIT_MIN_S = 300.0  # run_replay compiles its loop for this much IMU data or more [s] (use_jit)
+LAZY_FIRST = 256  # IMU samples at most that a "lazy" run_replay runs as Python before it loads the compiled loop
 
 
 @dataclass
@@ -173,9 +170,9 @@ def run_replay(
 
     loop: how the IMU samples between two events run: "step" (on_imu, sample by sample), "compiled" (the stretches
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
-    tests and debugging), "background" (numba and the compiled kernels load in a thread while the first stretch runs
-    as Python, compiled from the next stretch on: the first samples without waiting for numba, the same floats);
-    None: "background" where ``use_jit`` says, else "step". The block loop runs only where the
+    tests and debugging), "lazy" (the first stretch as Python, then numba and the compiled kernels load, about a
+    second, and the rest runs compiled: the first samples without waiting for numba, the same floats); None: "lazy"
+    where ``use_jit`` says, else "step". The block loop runs only where the
     run needs no step-wise hand-over (no odometer stream, no smoothing; with a compensator, from one learning event
     to the next: Navigator.run_imu); epoch_due() (optional) says
     from which IMU time on_epoch must see the epochs (None: every one); without it on_epoch sees every epoch and the
@@ -200,18 +197,17 @@ def run_replay(
     aid_data = {kind: getattr(ds, kind) for kind in AID_STREAMS}
     held: list[tuple[str, int]] = []  # aid samples waiting for the IMU sample that reaches their time
     if loop is None:
-        loop = "background" if use_jit(ds) else "step"
-    if loop not in ("step", "compiled", "python", "background"):
-        raise ValueError(f"loop: step, compiled, python or background, not {loop!r}")
+        loop = "lazy" if use_jit(ds) else "step"
+    if loop not in ("step", "compiled", "python", "lazy"):
+        raise ValueError(f"loop: step, compiled, python or lazy, not {loop!r}")
     blocks = loop != "step" and not streams and rec is None and (on_epoch is None or epoch_due)
-    jit, loader = loop == "compiled", None
+    jit = loop == "compiled"
+    load_jit = blocks and loop == "lazy"  # numba loads after the first stretch, which runs as Python
     if blocks:
         if jit:
             from .nav.kernels import compiled
 
             compiled()  # numba loads before the clock starts (start-up, not the loop)
-        elif loop == "background":
-            loader = _CompiledLoader()
         block_args = (np.ascontiguousarray(imu.t_ns, dtype=np.int64), np.ascontiguousarray(imu.dtheta, dtype=float),
                       np.ascontiguousarray(imu.dvel, dtype=float))
         rows, row_std = np.empty((len(imu), 10)), np.empty((len(imu), 3))
@@ -222,7 +218,7 @@ def run_replay(
     i = 0
     e = -1
     wall0 = time.perf_counter()
-    waited = 0.0  # [s] for the compiled kernels to load ("background"): start-up, not the loop
+    waited = 0.0  # [s] loading the compiled kernels ("lazy"): start-up, not the loop
     while e + 1 < len(events):
         e += 1
         kind, k = events[e]
@@ -235,11 +231,15 @@ def run_replay(
         if blocks and not held:
             due = epoch_due() if epoch_due is not None else None
             k_last = events[others[bisect_right(others, e)] - 1][1]  # the last IMU sample before the next event
-            if loader is not None and i > 0:  # the first stretch ran as Python: now the compiled kernels
+            if load_jit and i > 0:  # the first samples ran as Python: now the compiled kernels
                 w0 = time.perf_counter()
-                jit, loader = loader.wait(), None
+                from .nav.kernels import compiled
+
+                compiled()
+                jit, load_jit = True, False
                 waited = time.perf_counter() - w0
-            k_end = nav.run_imu(*block_args, k, k_last + 1, 2**62 if due is None else due, rows, row_std, jit)
+            k_stop = min(k_last + 1, k + LAZY_FIRST) if load_jit else k_last + 1
+            k_end = nav.run_imu(*block_args, k, k_stop, 2**62 if due is None else due, rows, row_std, jit)
             if k_end > k:
                 n_run = k_end - k
                 t_out[i:i + n_run] = block_args[0][k:k_end]
@@ -248,7 +248,7 @@ def run_replay(
                 outage[i:i + n_run] = nav.gnss_state != "valid"
                 i += n_run
                 e += n_run - 1
-                if on_epoch is not None:
+                if on_epoch is not None and (k_end < k_stop or k_stop == k_last + 1):  # not a cut at LAZY_FIRST
                     on_epoch(nav)
                 continue
         nav.on_imu(t_list[k], dtheta[k], dvel[k])
@@ -294,32 +294,6 @@ def run_replay(
     if rec is not None:
         res.smoothing, res.smoothed = smoothed_result(res, rec)
     return res
-
-
-class _CompiledLoader:
-    """numba and the compiled kernels (zennav.nav.kernels.compiled: about a second from the on-disk cache, a first
-    compile on a machine much longer) loading in a daemon thread while a replay reads its first samples; ``wait()``
-    returns whether they loaded (else the block loop stays Python: slower, the same floats)."""
-
-    def __init__(self) -> None:
-        self.ok = False
-        self._done = threading.Event()
-        threading.Thread(target=self._load, name="zennav-jit-load", daemon=True).start()
-
-    def _load(self) -> None:
-        from .nav.kernels import compiled
-
-        try:
-            compiled()
-            self.ok = True
-        except Exception:
-            log.exception("loading the compiled kernels failed; the replay goes on in Python")
-        finally:
-            self._done.set()
-
-    def wait(self) -> bool:
-        self._done.wait()
-        return self.ok
 
 
 def use_jit(ds: Dataset) -> bool:

@@ -1,7 +1,7 @@
 """A replay's start and its files (issue 17): the polars reader gives np.loadtxt's floats bit for bit and hands every
 irregular file to the checked reader; the polars formatter writes Python's %-text byte for byte; a KF-GINS truth
-read after the run is the one read before; the block loop that starts as Python while numba loads gives the
-Python loop's floats."""
+read after the run is the one read before; the block loop that loads numba after its first stretch gives the Python
+loop's floats."""
 from __future__ import annotations
 
 import gzip
@@ -79,10 +79,10 @@ def test_truth_read_after_the_run_is_the_truth(tmp_path):
     assert (later.truth.source, later.truth.at_antenna) == (now.truth.source, now.truth.at_antenna)
 
 
-def test_block_loop_started_while_numba_loads_gives_the_python_floats():
+def test_block_loop_that_loads_numba_after_its_first_stretch_gives_the_python_floats():
     ds = make_dataset("car", duration_s=60.0, seed=5)
     a = run_replay(ds, outages=[(20.0, 15.0)], loop="python")
-    b = run_replay(ds, outages=[(20.0, 15.0)], loop="background")
+    b = run_replay(ds, outages=[(20.0, 15.0)], loop="lazy")
     for x, y in ((a.t_ns, b.t_ns), (a.llh, b.llh), (a.v_n, b.v_n), (a.q_nb, b.q_nb), (a.std_pos_ned, b.std_pos_ned),
                  (a.outage, b.outage)):
         assert np.array_equal(x, y)
