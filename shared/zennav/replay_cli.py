@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import click
 
 # zennav.nav.learning.TARGETS, written out so that the command line starts without the core (a test ties them)
 TARGETS = ("position", "velocity", "drift", "body_velocity", "dvl_beam")
+KF_GINS_NAV = "KF_GINS_Navresult.nav"  # KF-GINS's solution file, written beside nav.txt for a KF-GINS configuration
 
 
 def _click_parser(name: str):
@@ -64,6 +66,9 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.config = nav_config(ds.config, filter_settings(spec, params, profile, constraints))
     except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
+    kf_gins = ds.notes.get("format") == "KF-GINS"
+    if out is None and kf_gins:  # as KF-GINS: into the configuration's outputpath
+        out = Path(ds.notes["outputpath"])
     if heading_unknown:
         ds.initial = replace(ds.initial, heading_known=False)
     if adaptive_r is not None:
@@ -110,6 +115,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         recorder.write(out, res.reports, spec, options)
         if res.smoothed is not None:
             write_solution(out / "smoothed", res.smoothed)
+        if kf_gins:  # the name KF-GINS gives its solution, for the scripts that read it
+            shutil.copyfile(out / "nav.txt", out / KF_GINS_NAV)
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
     if res.smoothed is not None and not as_json:
         click.echo("smoothed (forward-backward):\n" + format_table(metrics["smoothed"]))
@@ -117,7 +124,9 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         click.echo(_alignment_summary(res.status, int(ds.initial.t_ns)))
     if out is not None and not as_json:
         smoothed = f", {out / 'smoothed' / 'nav.txt'}, {out / 'smoothed' / 'nav.csv'}" if smooth else ""
-        click.echo(f"wrote {out / 'nav.txt'}, {out / 'nav.csv'}, {out / 'metrics.json'}, aid.csv, biases.csv{smoothed}")
+        kf_nav = f", {KF_GINS_NAV}" if kf_gins else ""
+        click.echo(f"wrote {out / 'nav.txt'}{kf_nav}, {out / 'nav.csv'}, {out / 'metrics.json'}, aid.csv, biases.csv"
+                   f"{smoothed}")
     if mcap is not None and not as_json:
         click.echo(f"wrote {mcap} (opens in Foxglove: map, 3-D pose, every message)")
     return metrics
@@ -167,7 +176,8 @@ _outage_opts = [
                  "(default PERIOD-DURATION)."),
     click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
                  help="Write nav.txt (KF-GINS .nav: week, sow, lat/lon deg, h m, v NED m/s, roll/pitch/yaw deg), "
-                 "nav.csv and metrics.json here."),
+                 "nav.csv and metrics.json here [a KF-GINS configuration's outputpath, with KF_GINS_Navresult.nav; "
+                 "else nothing]."),
     click.option("--json", "as_json", is_flag=True, help="Print metrics.json instead of the table."),
     click.option("--compensation", type=click.Choice(["none", "anfis", "anfis-pso", "anfis-ipso", "elman"]),
                  default="none", show_default=True, help="Learned INS-error compensation during outages, the "

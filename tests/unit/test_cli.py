@@ -41,6 +41,30 @@ def test_replay_kf_gins_config_with_outages_writes_outputs(tmp_path):
     assert (out / "nav.csv").read_text().startswith("t_s,lat_deg")
 
 
+def test_kf_gins_configuration_without_out_writes_into_its_outputpath(tmp_path, monkeypatch):
+    """As KF-GINS: the solution goes to the configuration's outputpath (relative to the current directory, else to
+    the YAML's folder where that folder exists), also under KF-GINS's file name."""
+    import yaml
+
+    ds = make_dataset("static", duration_s=5.0, imu_rate_hz=100.0, seed=1)
+    yaml_path = kfgins.write_dataset(ds, tmp_path / "data")
+    config = yaml.safe_load(yaml_path.read_text())
+    (tmp_path / "data" / "results").mkdir()
+    yaml_path.write_text(yaml.safe_dump({**config, "outputpath": "results"}))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    res = CliRunner().invoke(main, ["replay", "--kf-gins-config", str(yaml_path)])
+    assert res.exit_code == 0, res.output
+    results = tmp_path / "data" / "results"
+    assert (results / "KF_GINS_Navresult.nav").read_bytes() == (results / "nav.txt").read_bytes()
+    assert len(np.loadtxt(results / "nav.txt")) == 500 and (results / "metrics.json").is_file()
+    assert list(elsewhere.iterdir()) == []
+    (elsewhere / "results").mkdir()  # KF-GINS's rule first: the current directory's folder when it exists
+    assert CliRunner().invoke(main, ["replay", str(yaml_path)]).exit_code == 0
+    assert (elsewhere / "results" / "KF_GINS_Navresult.nav").is_file()
+
+
 def test_user_mistakes_give_one_line_errors(tmp_path):
     runner = CliRunner()
     cfg = kfgins.write_dataset(make_dataset("static", duration_s=5.0, imu_rate_hz=100.0), tmp_path, name="s")

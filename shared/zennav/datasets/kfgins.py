@@ -365,6 +365,20 @@ class _Config:
         where = f" (looked in {', '.join(map(str, bases))})" if bases else ""
         raise self.error((key,), f"file '{value}' not found{where}")
 
+    def folder(self, key: str) -> Path:
+        """An output folder (default "."): relative ones as KF-GINS (current directory) when it exists there, else the
+        first existing one relative to the YAML's folder or the folder above it (as file()), else the current
+        directory's (created when written)."""
+        value = self.get(key, required=False) or "."
+        if not isinstance(value, str):
+            raise self.error((key,), f"expected a folder path, got {value!r}")
+        path = Path(value)
+        if path.is_absolute():
+            return path
+        folder = self.path.parent
+        return next((base / path for base in (Path.cwd(), folder, folder.parent) if (base / path).is_dir()),
+                    Path.cwd() / path)
+
 
 def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
     """KF-GINS YAML configuration -> Dataset, everything converted once to SI. defer_truth: leave the truth file
@@ -464,7 +478,7 @@ def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
         "config": str(yaml_path),
         "time": "GPS seconds of week",
         "imu_rate_hz": rate_hz,
-        "outputpath": str(cfg.get("outputpath", required=False) or "."),
+        "outputpath": str(cfg.folder("outputpath")),
         "gnss_fix": "the KF-GINS GNSS format has no fix type: every epoch is FixType.SINGLE, num_sats -1",
         "remarks": cfg.notes,
     }
