@@ -31,7 +31,7 @@ from pathlib import Path
 PY = sys.executable
 BIN = Path(PY).parent
 HEAVY = ("torch", "matplotlib", "mcap", "scipy.stats", "scipy.signal", "scipy.special", "scipy.optimize",
-         "scipy.spatial", "sklearn", "pandas", "numba", "zenoh", "yaml", "zennav.learn.loop")
+         "scipy.spatial", "sklearn", "pandas", "polars", "numba", "zenoh", "yaml", "zennav.learn.loop")
 
 CHILD = r"""
 import json, os, sys, time

@@ -143,6 +143,7 @@ def write_outputs(out_dir: Path, ds: Dataset, res: ReplayResult, metrics: dict) 
 def write_solution(out_dir: Path, res: ReplayResult) -> None:
     """A replay's rows as nav.txt (KF-GINS .nav format) and nav.csv in out_dir."""
     from .datasets import kfgins
+    from .datasets.fasttext import table_text
 
     out_dir.mkdir(parents=True, exist_ok=True)
     euler = quat_to_euler(res.q_nb)
@@ -153,8 +154,8 @@ def write_solution(out_dir: Path, res: ReplayResult) -> None:
         [res.t_ns / NS, np.degrees(res.llh[:, :2]), res.llh[:, 2], res.v_n, np.degrees(euler), res.std_pos_ned,
          res.outage.astype(float)]
     )
-    np.savetxt(out_dir / "nav.csv", cols, delimiter=",", header=header, comments="",
-               fmt=["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%d"])
+    fmts = ["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%.0f"]
+    (out_dir / "nav.csv").write_text(header + "\n" + table_text(cols, fmts, ","), encoding="utf-8")
 
 
 def drift(ref_llh: np.ndarray, end_error_m: float) -> tuple[float, float | None]:

@@ -199,6 +199,8 @@ def _load_ins_file(path) -> tuple[dict, dict]:
     """(filter settings, profiles) of an ins parameter file (see load_filter_params)."""
     import yaml
 
+    from .yamlfile import load_with_nodes
+
     p = Path(path) if path else INS_PARAMS
     if not p.exists():
         if path:
@@ -206,8 +208,8 @@ def _load_ins_file(path) -> tuple[dict, dict]:
         return {}, {}
     text = p.read_text()
     try:
-        doc = yaml.safe_load(text) or {}
-        lines = _key_lines(yaml.compose(text))
+        doc, root = load_with_nodes(text)
+        doc, lines = doc or {}, _key_lines(root)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         raise ParamError(f"{p}:{mark.line + 1 if mark else 0}: not YAML: {getattr(e, 'problem', e)}") from None

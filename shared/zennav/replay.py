@@ -23,6 +23,7 @@ from .nav.smoother import Recorder, Smoothed, smooth, smooth_rows
 from .nav.types import NS, Dataset
 
 JIT_MIN_S = 300.0  # run_replay compiles its loop for this much IMU data or more [s] (use_jit)
+LAZY_FIRST = 256  # IMU samples at most that a "lazy" run_replay runs as Python before it loads the compiled loop
 
 
 @dataclass
@@ -169,7 +170,9 @@ def run_replay(
 
     loop: how the IMU samples between two events run: "step" (on_imu, sample by sample), "compiled" (the stretches
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
-    tests and debugging); None: "compiled" where ``use_jit`` says, else "step". The block loop runs only where the
+    tests and debugging), "lazy" (the first stretch as Python, then numba and the compiled kernels load, about a
+    second, and the rest runs compiled: the first samples without waiting for numba, the same floats); None: "lazy"
+    where ``use_jit`` says, else "step". The block loop runs only where the
     run needs no step-wise hand-over (no odometer stream, no smoothing; with a compensator, from one learning event
     to the next: Navigator.run_imu); epoch_due() (optional) says
     from which IMU time on_epoch must see the epochs (None: every one); without it on_epoch sees every epoch and the
@@ -194,12 +197,14 @@ def run_replay(
     aid_data = {kind: getattr(ds, kind) for kind in AID_STREAMS}
     held: list[tuple[str, int]] = []  # aid samples waiting for the IMU sample that reaches their time
     if loop is None:
-        loop = "compiled" if use_jit(ds) else "step"
-    if loop not in ("step", "compiled", "python"):
-        raise ValueError(f"loop: step, compiled or python, not {loop!r}")
+        loop = "lazy" if use_jit(ds) else "step"
+    if loop not in ("step", "compiled", "python", "lazy"):
+        raise ValueError(f"loop: step, compiled, python or lazy, not {loop!r}")
     blocks = loop != "step" and not streams and rec is None and (on_epoch is None or epoch_due)
+    jit = loop == "compiled"
+    load_jit = blocks and loop == "lazy"  # numba loads after the first stretch, which runs as Python
     if blocks:
-        if loop == "compiled":
+        if jit:
             from .nav.kernels import compiled
 
             compiled()  # numba loads before the clock starts (start-up, not the loop)
@@ -213,6 +218,7 @@ def run_replay(
     i = 0
     e = -1
     wall0 = time.perf_counter()
+    waited = 0.0  # [s] loading the compiled kernels ("lazy"): start-up, not the loop
     while e + 1 < len(events):
         e += 1
         kind, k = events[e]
@@ -225,8 +231,15 @@ def run_replay(
         if blocks and not held:
             due = epoch_due() if epoch_due is not None else None
             k_last = events[others[bisect_right(others, e)] - 1][1]  # the last IMU sample before the next event
-            k_end = nav.run_imu(*block_args, k, k_last + 1, 2**62 if due is None else due, rows, row_std,
-                                loop == "compiled")
+            if load_jit and i > 0:  # the first samples ran as Python: now the compiled kernels
+                w0 = time.perf_counter()
+                from .nav.kernels import compiled
+
+                compiled()
+                jit, load_jit = True, False
+                waited = time.perf_counter() - w0
+            k_stop = min(k_last + 1, k + LAZY_FIRST) if load_jit else k_last + 1
+            k_end = nav.run_imu(*block_args, k, k_stop, 2**62 if due is None else due, rows, row_std, jit)
             if k_end > k:
                 n_run = k_end - k
                 t_out[i:i + n_run] = block_args[0][k:k_end]
@@ -235,7 +248,7 @@ def run_replay(
                 outage[i:i + n_run] = nav.gnss_state != "valid"
                 i += n_run
                 e += n_run - 1
-                if on_epoch is not None:
+                if on_epoch is not None and (k_end < k_stop or k_stop == k_last + 1):  # not a cut at LAZY_FIRST
                     on_epoch(nav)
                 continue
         nav.on_imu(t_list[k], dtheta[k], dvel[k])
@@ -263,7 +276,7 @@ def run_replay(
         if on_epoch is not None:
             on_epoch(nav)
         i += 1
-    wall = time.perf_counter() - wall0
+    wall = time.perf_counter() - wall0 - waited
     nav.recorder = None
     res = ReplayResult(
         dataset=ds.name,

@@ -59,7 +59,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     from .run_outputs import RunRecorder
 
     try:
-        ds = load_dataset(spec, **(options or {}))
+        ds = load_dataset(spec, defer_truth=True, **(options or {}))  # read after the run: start-up time
         if odometer is not None:
             ds.odometer = load_kfgins_odometer(odometer)
         # the ins's filter on the dataset's sensors
@@ -94,6 +94,13 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
                      smoothing=smooth, epoch_due=recorder.due_ns)
     progress.close()
+    if "truth_file" in ds.notes:  # a KF-GINS truth file, read after the run
+        from .datasets.kfgins import load_deferred_truth
+
+        try:
+            load_deferred_truth(ds)
+        except DataError as e:
+            raise click.ClickException(str(e)) from None
     recorder.finish(ds, sensor_events(ds, list(outages), every)[1] if mcap is not None else [], res.reports)
     metrics = evaluate(ds, res)
     learned = compensation != "none"

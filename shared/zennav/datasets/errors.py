@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from zennav.datasets.fasttext import read_floats
+
 
 class DataError(Exception):
     """A problem in a user's data or configuration file; ``line`` is 1-based or None."""
@@ -134,7 +136,8 @@ def read_table(
     text_cols: int = 0,
     commas_as_space: bool = False,
 ) -> Table:
-    """Read a numeric text table fast (np.loadtxt), rescanning only on failure to name the bad line.
+    """Read a numeric text table fast (a plain table: fasttext.read_floats; else np.loadtxt), rescanning only on failure
+    to name the bad line.
 
     columns: the accepted column count, or a set of them (all rows must have the same count).
     delimiter None splits on whitespace; commas_as_space also accepts commas (KF-GINS splits on ", \\t").
@@ -146,6 +149,9 @@ def read_table(
     columns = {columns} if isinstance(columns, int) else set(columns)
     lines = None
     fast = skip_header == 0 and skip_footer == 0 and text_cols == 0
+    data = read_floats(path, columns, delimiter or " ", comments) if fast else None
+    if data is not None:
+        return Table(path, data, None, None, 1, comments)
     if not fast:
         all_lines = read_text(path).splitlines()
         lines = all_lines[skip_header : len(all_lines) - skip_footer]

@@ -25,8 +25,10 @@ import numpy as np
 import yaml
 
 from zennav.datasets.errors import DataError, read_table, read_text
+from zennav.datasets.fasttext import table_text
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
+from zennav.yamlfile import load_with_nodes
 
 WEEK_NS = 604800 * NS
 D2R = math.pi / 180.0
@@ -133,21 +135,19 @@ def load_nav(path, source: str = "", fields=TRUTH_FIELDS, at_antenna: bool = Fal
 # ----------------------------------------------------------------------------------------------- writers
 
 
-def _sow_text(t_ns, week: int) -> list[str]:
-    """Exact decimal seconds of week ('%d.%09d') of t_ns [ns]; ValueError if a time is before the week."""
+def _sow_ns(t_ns, week: int) -> np.ndarray:
+    """Nanoseconds of GPS week ``week`` of t_ns [ns]; ValueError if a time is before the week."""
     sow_ns = np.asarray(t_ns, dtype=np.int64) - np.int64(week) * WEEK_NS
     if sow_ns.size and sow_ns.min() < 0:
         raise ValueError(f"times before GPS week {week}")
-    sec, frac = np.divmod(sow_ns, NS)
-    return [f"{s}.{f:09d}" for s, f in zip(sec.tolist(), frac.tolist())]
+    return sow_ns
 
 
-def _write_rows(path, t_ns, week: int, columns: np.ndarray, fmt: str, lead: list[str] | None = None) -> None:
-    """One line per row: [lead] sow values, values formatted with ``fmt`` (one %-spec per column)."""
-    sow = _sow_text(t_ns, week)
-    lead = lead or [""] * len(sow)
-    body = [fmt % tuple(row) for row in np.asarray(columns, dtype=float).tolist()]
-    Path(path).write_text("".join(f"{a}{s} {b}\n" for a, s, b in zip(lead, sow, body)), encoding="utf-8")
+def _write_rows(path, t_ns, week: int, columns: np.ndarray, fmt: str, lead: str | None = None) -> None:
+    """One line per row: [lead] sow as exact decimal seconds ('%d.%09d'), values formatted with ``fmt`` (one %-spec
+    per column)."""
+    text = table_text(np.asarray(columns, dtype=float), fmt.split(" "), " ", lead, _sow_ns(t_ns, week))
+    Path(path).write_text(text, encoding="utf-8")
 
 
 def write_imu(path, imu: ImuData, week: int = 0) -> None:
@@ -170,7 +170,7 @@ def write_nav(path, week: int, t_ns, llh, v_n, euler) -> None:
     llh = np.asarray(llh, dtype=float)
     cols = np.column_stack([np.rad2deg(llh[:, :2]), llh[:, 2], v_n, np.rad2deg(euler)])
     fmt = "%.13f %.13f %.9f %.9f %.9f %.9f %.12f %.12f %.12f"
-    _write_rows(path, t_ns, week, cols, fmt, lead=[f"{week} "] * len(llh))
+    _write_rows(path, t_ns, week, cols, fmt, lead=str(week))
 
 
 def write_dataset(dataset: Dataset, folder, name: str | None = None) -> Path:
@@ -268,8 +268,7 @@ class _Config:
         self.path = path
         text = read_text(path)
         try:
-            self.data = yaml.safe_load(text)
-            self.root = yaml.compose(text)
+            self.data, self.root = load_with_nodes(text)
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
@@ -381,8 +380,9 @@ class _Config:
                     Path.cwd() / path)
 
 
-def load_config(yaml_path) -> Dataset:
-    """KF-GINS YAML configuration -> Dataset, everything converted once to SI.
+def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
+    """KF-GINS YAML configuration -> Dataset, everything converted once to SI. defer_truth: leave the truth file
+    (as large as the IMU file) unread, described in notes["truth_file"], for load_deferred_truth after the run.
 
     KF-GINS units: initpos [deg, deg, m], initatt/initattstd [deg], initgyrbias/initbgstd/gbstd [deg/h],
     initaccbias/initbastd/abstd [mGal], initgyrscale/initaccscale/initsgstd/initsastd/gsstd/asstd [ppm], arw
@@ -469,9 +469,11 @@ def load_config(yaml_path) -> Dataset:
     initial = initial_at(t_ns=int(imu.t_ns[0]))
     config = NavConfig(imu_noise=noise, lever_arm_b=lever_arm_b, start_t_ns=initial.t_ns, end_t_ns=int(imu.t_ns[-1]))
     truth = None
-    if truth_path is not None:
-        truth = load_nav(truth_path, str(info.get("source", "")), fields, bool(info.get("at_antenna", False)))
-    notes = {
+    truth_file = {"path": str(truth_path), "source": str(info.get("source", "")), "fields": list(fields),
+                  "at_antenna": bool(info.get("at_antenna", False))}
+    if truth_path is not None and not defer_truth:
+        truth = _load_truth_file(truth_file)
+    notes: dict = {
         "format": "KF-GINS",
         "config": str(yaml_path),
         "time": "GPS seconds of week",
@@ -480,7 +482,21 @@ def load_config(yaml_path) -> Dataset:
         "gnss_fix": "the KF-GINS GNSS format has no fix type: every epoch is FixType.SINGLE, num_sats -1",
         "remarks": cfg.notes,
     }
+    if truth_path is not None and defer_truth:
+        notes["truth_file"] = truth_file
     return Dataset(yaml_path.stem, imu, gnss, config, initial, truth, notes)
+
+
+def load_deferred_truth(ds: Dataset) -> None:
+    """Read the truth file that load_config(defer_truth=True) left unread into ds.truth (nothing to do otherwise)."""
+    truth_file = ds.notes.pop("truth_file", None)
+    if truth_file is not None:
+        ds.truth = _load_truth_file(truth_file)
+
+
+def _load_truth_file(truth_file: dict) -> Truth:
+    """load_nav of a configuration's truth file described as {path, source, fields, at_antenna}."""
+    return load_nav(truth_file["path"], truth_file["source"], truth_file["fields"], truth_file["at_antenna"])
 
 
 def _optional_vector(cfg: _Config, key: str) -> np.ndarray:

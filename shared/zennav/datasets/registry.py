@@ -103,8 +103,13 @@ def parse_loader_options(items) -> dict:
     return out
 
 
-def load_dataset(spec: str, **options) -> Dataset:
-    """Load a dataset from ``spec``: one of ACCEPTED. ``options`` go to the loader (e.g. prefilter="none")."""
+def load_dataset(spec: str, defer_truth: bool = False, **options) -> Dataset:
+    """Load a dataset from ``spec``: one of ACCEPTED. ``options`` go to the loader (e.g. prefilter="none").
+    defer_truth: a KF-GINS configuration's truth file is left unread (kfgins.load_deferred_truth reads it)."""
+    if defer_truth and Path(spec).suffix.lower() in (".yaml", ".yml"):
+        from zennav.datasets import kfgins
+
+        return kfgins.load_config(spec, defer_truth=True, **options)
     if spec in RECORDINGS:
         return _load_folder(data_root() / RECORDINGS[spec], **options)
     if spec.startswith("ansfl:"):

@@ -31,6 +31,7 @@ max_innovation per update is, from innovations alone, indistinguishable from a s
 """
 from __future__ import annotations
 
+import functools
 from collections import deque
 
 import numpy as np
@@ -54,12 +55,18 @@ class ConsistencyMonitor:
         self.window = int(window)
         self.max_innovation = float(max_innovation)
         self.max_factor = float(max_factor)
-        self.threshold = chi2_quantile(test_probability, self.window * dim)  # on the window's NIS sum
+        self.test_probability = float(test_probability)
         self._nu: deque[np.ndarray] = deque(maxlen=self.window)
         self._nis: deque[float] = deque(maxlen=self.window)
         self._C_minus_R: deque[np.ndarray] = deque(maxlen=self.window)
         self.last_factor = 1.0
         self.counts = {"updates": 0, "overconfident": 0, "inflated": 0, "held": 0}
+
+    @functools.cached_property
+    def threshold(self) -> float:
+        """The chi-square quantile the window's NIS sum is tested against (at first use: scipy.special loads then,
+        not when the engine is built)."""
+        return chi2_quantile(self.test_probability, self.window * self.dim)
 
     def factor(self, nu: np.ndarray, HPHt: np.ndarray, R: np.ndarray) -> float:
         """Fold one innovation nu (predicted minus observed) with its predicted H P H' and R into the window and

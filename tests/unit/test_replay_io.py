@@ -1,0 +1,89 @@
+"""A replay's start and its files (issue 17): the polars reader gives np.loadtxt's floats bit for bit and hands every
+irregular file to the checked reader; the polars formatter writes Python's %-text byte for byte; a KF-GINS truth
+read after the run is the one read before; the block loop that loads numba after its first stretch gives the Python
+loop's floats."""
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pytest
+
+from zennav.datasets import kfgins
+from zennav.datasets.errors import read_table
+from zennav.datasets.fasttext import read_floats, table_text
+from zennav.replay import run_replay
+from zennav.sim.scenarios import make_dataset
+
+
+def _values(seed: int, n: int) -> np.ndarray:
+    """Awkward doubles: wide magnitudes, both signs, -0.0, and dyadic values that are exact decimal ties at 4 to 13
+    decimals (k / 2**m has exactly m decimals)."""
+    rng = np.random.default_rng(seed)
+    wide = rng.normal(size=n) * 10.0 ** rng.integers(-12, 9, size=n)
+    ties = rng.integers(-10**6, 10**6, size=n) / 2.0 ** rng.integers(5, 15, size=n)
+    return np.concatenate([wide, ties, [0.0, -0.0, 0.5, -2.5, 1e15 + 0.5, 123.0]])
+
+
+def test_plain_tables_parse_to_the_loadtxt_floats(tmp_path):
+    v = _values(1, 3000).reshape(-1, 6)
+    path = tmp_path / "t.txt"
+    lines = [" ".join(f"{x:.17g}" if k % 2 else f"{x:.16e}" for x in row) for k, row in enumerate(v)]
+    path.write_text("# a comment line\n" + "\n".join(lines) + "\n")
+    got = read_floats(path, {6})
+    assert got is not None and got.flags.c_contiguous
+    assert np.array_equal(got, np.loadtxt(path, ndmin=2)) and np.array_equal(got, v)
+    assert read_floats(path, {7}) is None  # the checked reader words the column count
+    csv = tmp_path / "t.csv"
+    csv.write_text("\n".join(",".join(f"{x:.17g}" for x in row) for row in v) + "\r\n")
+    assert np.array_equal(read_floats(csv, {6}, ","), v)
+
+
+@pytest.mark.parametrize("text", ["1 2 3\n\n4 5 6\n", "1  2 3\n4 5 6\n", "1 2 3 # x\n4 5 6\n", "1\t2 3\n4 5 6\n",
+                                  " 1 2 3\n4 5 6\n", "1 2 3 \n4 5 6\n"])
+def test_irregular_tables_go_to_the_checked_reader(tmp_path, text):
+    path = tmp_path / "t.txt"
+    path.write_text(text)
+    assert read_floats(path, {3}) is None
+    assert np.array_equal(read_table(path, 3).data, [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    gz = tmp_path / "t.txt.gz"
+    gz.write_bytes(gzip.compress(b"1 2 3\n"))
+    assert read_floats(gz, {3}) is None
+
+
+def test_fixed_columns_are_the_percent_text():
+    v = _values(2, 2000)
+    cols = np.column_stack([v, v[::-1], v * 3.0, np.abs(v) % 1.0])
+    fmts = ["%.4f", "%.13f", "%.13f", "%.0f"]
+    ns = np.arange(len(v), dtype=np.int64) * 5_000_001 + 7
+    want = "".join(f"0 {t // 10**9}.{t % 10**9:09d} " + " ".join(fmts) % tuple(r) + "\n"
+                   for t, r in zip(ns.tolist(), cols.tolist()))
+    assert table_text(cols, fmts, " ", "0", ns) == want
+    assert table_text(cols, fmts, ",") == "".join(",".join(fmts) % tuple(r) + "\n" for r in cols.tolist())
+    cols[5, 2] = np.nan  # not finite, or another spec: Python's % for the whole table
+    assert table_text(cols, fmts) == "".join(" ".join(fmts) % tuple(r) + "\n" for r in cols.tolist())
+    sci = ["%.3e", "%.2f"]
+    assert table_text(cols[:, :2], sci) == "".join(" ".join(sci) % tuple(r) + "\n" for r in cols[:, :2].tolist())
+    assert table_text(np.empty((0, 2)), ["%.3f", "%.2f"], ns=np.empty(0, dtype=np.int64)) == ""
+
+
+def test_truth_read_after_the_run_is_the_truth(tmp_path):
+    yaml_path = kfgins.write_dataset(make_dataset("car", duration_s=20.0, seed=3), tmp_path, "car")
+    now = kfgins.load_config(yaml_path)
+    later = kfgins.load_config(yaml_path, defer_truth=True)
+    assert later.truth is None and now.truth is not None
+    kfgins.load_deferred_truth(later)
+    assert "truth_file" not in later.notes
+    for name in ("t_ns", "llh", "v_n", "euler"):
+        assert np.array_equal(getattr(later.truth, name), getattr(now.truth, name))
+    assert (later.truth.source, later.truth.at_antenna) == (now.truth.source, now.truth.at_antenna)
+
+
+def test_block_loop_that_loads_numba_after_its_first_stretch_gives_the_python_floats():
+    ds = make_dataset("car", duration_s=60.0, seed=5)
+    a = run_replay(ds, outages=[(20.0, 15.0)], loop="python")
+    b = run_replay(ds, outages=[(20.0, 15.0)], loop="lazy")
+    for x, y in ((a.t_ns, b.t_ns), (a.llh, b.llh), (a.v_n, b.v_n), (a.q_nb, b.q_nb), (a.std_pos_ned, b.std_pos_ned),
+                 (a.outage, b.outage)):
+        assert np.array_equal(x, y)
+    assert a.status["counters"] == b.status["counters"]
