@@ -47,6 +47,7 @@ from .learn import (
 )
 from .nav import (
     ALIGN_STATES,
+    SolutionPacker,
     aid_report_msg,
     alignment_map,
     attitude_msg,
@@ -57,7 +58,6 @@ from .nav import (
     nav_solution_msg_of_row,
     nav_status_msg,
     noise_map,
-    SolutionPacker,
 )
 from .schema import (
     ANY,

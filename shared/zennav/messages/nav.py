@@ -167,6 +167,8 @@ _I8, _I16, _I32, _I64 = (struct.Struct(f">B{c}").pack for c in "bhiq")
 
 def _int(n: int) -> bytes:
     """msgpack's encoding of the int n (the smallest of its formats, as msgpack.Packer chooses)."""
+    if n >= 0x100000000:  # the common case first: times in ns
+        return _U64(0xcf, n)
     if n >= 0:
         if n < 0x80:
             return bytes((n,))
@@ -174,7 +176,7 @@ def _int(n: int) -> bytes:
             return _U8(0xcc, n)
         if n < 0x10000:
             return _U16(0xcd, n)
-        return _U32(0xce, n) if n < 0x100000000 else _U64(0xcf, n)
+        return _U32(0xce, n)
     if n >= -32:
         return bytes((n & 0xff,))
     if n >= -0x80:
@@ -194,7 +196,7 @@ class SolutionPacker:
     _ARRAYS = (("llh", 3), ("v_n", 3), ("q_nb", 4), ("euler", 3), ("gyro_bias", 3), ("accel_bias", 3),
                ("std_pos_ned", 3), ("std_v_n", 3), ("std_euler", 3))
 
-    def __init__(self):
+    def __init__(self) -> None:
         key = msgpack.packb
         pieces = []  # the constant bytes before each float
         for name, n in self._ARRAYS:
@@ -206,7 +208,7 @@ class SolutionPacker:
             key(SCHEMAS["nav_solution"].version) + key("t_ns")
         self._k_state, self._k_cseq, self._k_imu_pub, self._k_src, self._k_seq, self._k_pub = (
             key(k) for k in ("gnss_state", "imu_cseq", "imu_pub_ns", "src", "seq", "pub_ns"))
-        self._strs: dict = {}
+        self._strs: dict[object, bytes] = {}
 
     def _str(self, s) -> bytes:
         """msgpack of str(s), cached by s (a GNSS state, the publisher's src)."""
@@ -220,13 +222,8 @@ class SolutionPacker:
         """The message at t_ns [ns] of the navigation state row (10 floats: lat, lon [rad], h [m], v_n [m/s, NED],
         q_nb) with std (9 floats: the 1-sigma of position [m], velocity [m/s], attitude [rad]), the biases (3 floats
         each) and GNSS state, of the IMU sample imu_cseq published at imu_pub_ns, stamped src, seq, pub_ns."""
-        q0, q1, q2, q3 = row[6], row[7], row[8], row[9]
         args = self._args
-        args[1:20:2] = row
-        args[21:26:2] = euler_list(q0, q1, q2, q3)
-        args[27:32:2] = gyro_bias
-        args[33:38:2] = accel_bias
-        args[39::2] = std
+        args[1::2] = (*row, *euler_list(row[6], row[7], row[8], row[9]), *gyro_bias, *accel_bias, *std)
         return b"".join((self._head, _int(t_ns), self._floats(*args), self._k_state, self._str(gnss_state),
                          self._k_cseq, _int(imu_cseq), self._k_imu_pub, _int(imu_pub_ns), self._k_src, self._str(src),
                          self._k_seq, _int(seq), self._k_pub, _int(pub_ns)))
