@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--compiled", action="store_true",
                    help="run the IMU samples of each imu_batch message through the engine's block loop compiled by "
                         "numba (the same solutions; the engine's CPU per sample about 15x less, the whole ins's about "
-                        "2.5x with a solution per sample, benchmarks/bus_throughput.py; numba and the kernels add "
+                        "2.7x with a solution per sample, benchmarks/bus_throughput.py; numba and the kernels add "
                         "about 115 MB resident memory, benchmarks/memory.py; compiled once per machine, loaded in "
                         "about a second; not with --learning, whose tap takes every sample step-wise)")
     p.add_argument("--attitude-alignment", action="store_true",
