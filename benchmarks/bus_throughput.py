@@ -115,8 +115,8 @@ class Procs:
 
 def sink_main(argv) -> int:
     """Stand-in consumer for the 'bus' measurement: receives, decodes, validates and merges the stream as the ins
-    does (zennav.stream.StreamFollower), hands each sample to a no-op, and acknowledges the end like the ins so
-    that ingest can exit."""
+    does (zennav.stream.StreamFollower; an in-order imu_batch whole, as the ins takes it), hands each sample (or
+    batch) to a no-op, and acknowledges the end like the ins so that ingest can exit."""
     from zennav import messages as M
     from zennav.service import ServiceRunner, add_bus_args
     from zennav.stream import StreamFollower
@@ -132,12 +132,16 @@ def sink_main(argv) -> int:
         if msg["schema"] == "imu":
             st["imu"] += 1
 
+    def on_batch(key, msg) -> None:  # an in-order imu_batch, whole (as the ins takes it)
+        st["imu"] += len(msg["t_ns_list"])
+
     def on_end(msg) -> None:
         wall, cpu = time.perf_counter() - st["t0"], time.process_time() - st["cpu0"]
         pub.put(M.make("nav_status", msg["t_ns"], gnss_state="valid", counters={}, rejected={}, imu_count=st["imu"],
                        gnss_count=0, model={}, stream={**follower.status(), "wall_s": wall, "cpu_s": cpu}))
 
-    follower = StreamFollower(lambda start, join: None, on_sample, on_end, run.stream_start_of, run.log)
+    follower = StreamFollower(lambda start, join: None, on_sample, on_end, run.stream_start_of, run.log,
+                              on_batch=on_batch)
 
     def on(key, msg, recv_ns) -> None:
         if st["t0"] is None:
@@ -269,7 +273,8 @@ def stage_costs(duration: float, batch: int) -> dict:
         return round(min(times) / n * 1e6, 2)
 
     def merge(msgs) -> None:
-        f = StreamFollower(lambda start, join: None, lambda key, msg: None, lambda end: None)
+        f = StreamFollower(lambda start, join: None, lambda key, msg: None, lambda end: None,
+                           on_batch=lambda key, msg: None)
         for k, m in msgs:
             f.on_message(k, m)
 
