@@ -17,9 +17,12 @@
    the consumer's CPU time per sample over the same span (its process, all threads: the engine, the decoding and
    zenoh's own threads), the figure a loaded machine distorts least.
 2. Latency: IMU paced at 200 Hz (real time), one sample per message; latency = wall clock at nav/solution
-   receive (this process) minus the IMU message's publish time (ingest), percentiles over every sample.
+   receive (this process) minus the IMU message's publish time (ingest), percentiles over every sample; split at
+   the solution's publish time (its pub_ns) into the ins hop (ingest publish -> ins solution publish: transport,
+   wake-ups, the engine) and the solution hop (ins publish -> receive here).
 3. Stage costs (in this process, no transport): microseconds per IMU sample of decode+validate, merge, the ins's
-   whole per-message path (engine included) and the solution message (build + encode), unbatched and batched:
+   whole per-message path (engine included) and the solution message (packed as the ins packs it,
+   zennav.messages.SolutionPacker), unbatched and batched:
    where the time goes.
 Peer-to-peer (peers on loopback, gossip) by default; --router also through a router (`zennav router`, everyone
 a client). Every case runs --repeat times (fresh processes each time); the rate printed is the median, with
@@ -112,8 +115,8 @@ class Procs:
 
 def sink_main(argv) -> int:
     """Stand-in consumer for the 'bus' measurement: receives, decodes, validates and merges the stream as the ins
-    does (zennav.stream.StreamFollower), hands each sample to a no-op, and acknowledges the end like the ins so
-    that ingest can exit."""
+    does (zennav.stream.StreamFollower; an in-order imu_batch whole, as the ins takes it), hands each sample (or
+    batch) to a no-op, and acknowledges the end like the ins so that ingest can exit."""
     from zennav import messages as M
     from zennav.service import ServiceRunner, add_bus_args
     from zennav.stream import StreamFollower
@@ -129,12 +132,16 @@ def sink_main(argv) -> int:
         if msg["schema"] == "imu":
             st["imu"] += 1
 
+    def on_batch(key, msg) -> None:  # an in-order imu_batch, whole (as the ins takes it)
+        st["imu"] += len(msg["t_ns_list"])
+
     def on_end(msg) -> None:
         wall, cpu = time.perf_counter() - st["t0"], time.process_time() - st["cpu0"]
         pub.put(M.make("nav_status", msg["t_ns"], gnss_state="valid", counters={}, rejected={}, imu_count=st["imu"],
                        gnss_count=0, model={}, stream={**follower.status(), "wall_s": wall, "cpu_s": cpu}))
 
-    follower = StreamFollower(lambda start, join: None, on_sample, on_end, run.stream_start_of, run.log)
+    follower = StreamFollower(lambda start, join: None, on_sample, on_end, run.stream_start_of, run.log,
+                              on_batch=on_batch)
 
     def on(key, msg, recv_ns) -> None:
         if st["t0"] is None:
@@ -177,12 +184,12 @@ def run_case(kind: str, via_router: bool, duration: float, speed: str, want_late
     else:
         bus_args = ["--connect", ep]
         bus = Bus("bench", mode="peer", listen=[ep], connect=[])
-    lat: list[int] = []
+    lat: list[tuple[int, int, int]] = []  # [ns] IMU publish -> solution receive, -> solution publish, publish ->
     status: dict = {}
     done = threading.Event()
 
     def on_sol(key, msg, recv_ns):
-        lat.append(recv_ns - msg["imu_pub_ns"])
+        lat.append((recv_ns - msg["imu_pub_ns"], msg["pub_ns"] - msg["imu_pub_ns"], recv_ns - msg["pub_ns"]))
 
     def on_status(key, msg, recv_ns):
         if msg["stream"].get("done"):
@@ -213,7 +220,7 @@ def run_case(kind: str, via_router: bool, duration: float, speed: str, want_late
             while len(lat) < n and time.monotonic() < t_end:
                 time.sleep(0.05)
             ms = np.array(lat) / 1e6
-            out.update(solutions=len(ms), latency_ms_all=ms, latency_ms=percentiles(ms))
+            out.update(solutions=len(ms), latency_ms_all=ms, latency_ms=percentiles(ms[:, 0]))
         return out
     finally:
         bus.close()
@@ -230,7 +237,8 @@ def stage_costs(duration: float, batch: int) -> dict:
     """[us per IMU sample] of the ins's per-message path in this process (no transport), on the messages ingest
     would publish (encoded): decode+validate (zennav.messages.Validator), merge (StreamFollower to a no-op), the ins
     (InsNode.on_sensor: merge, engine, solution built; published to a no-op; batched: also with the compiled block
-    loop, zennav-ins --compiled) and the solution message (build + encode, zennav.messages.nav_solution_msg_of).
+    loop, zennav-ins --compiled) and the solution message (packed as the ins service packs it,
+    zennav.messages.SolutionPacker, from the engine's state).
     Best of 3 passes each (the machine is shared)."""
     import logging
 
@@ -265,7 +273,8 @@ def stage_costs(duration: float, batch: int) -> dict:
         return round(min(times) / n * 1e6, 2)
 
     def merge(msgs) -> None:
-        f = StreamFollower(lambda start, join: None, lambda key, msg: None, lambda end: None)
+        f = StreamFollower(lambda start, join: None, lambda key, msg: None, lambda end: None,
+                           on_batch=lambda key, msg: None)
         for k, m in msgs:
             f.on_message(k, m)
 
@@ -275,8 +284,11 @@ def stage_costs(duration: float, batch: int) -> dict:
             node.on_sensor(k, m)
 
     def solution(nav) -> None:
+        pack, s = M.SolutionPacker().pack, nav.state
+        std = [*nav.std_pos_ned.tolist(), *nav.std_v_n.tolist(), *nav.std_att.tolist()]
         for i in range(n):
-            M.encode(M.nav_solution_msg_of(nav, i, 0))
+            pack(nav.t_ns, (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3), std, nav.gyro_bias,
+                 nav.accel_bias, nav.gnss_state, i, 0, "ins.bench", i, time.time_ns())
 
     def built_ins(block_loop=None) -> tuple:
         return InsNode(lambda kind, msg: None, log, block_loop=block_loop), decoded()
@@ -330,16 +342,18 @@ def latency(routes: list[bool], duration: float, repeat: int) -> list[dict]:
     for via_router in routes:
         runs = [run_case("ins", via_router, duration, "1", want_latency=True) for _ in range(repeat)]
         ms = np.concatenate([x.pop("latency_ms_all") for x in runs])
-        lm = percentiles(ms)
-        r = {"test": "latency_200hz", "via": runs[0]["via"], "runs": len(runs), "solutions": int(ms.size),
+        lm, ins_hop, sol_hop = (percentiles(ms[:, i]) for i in range(3))
+        r = {"test": "latency_200hz", "via": runs[0]["via"], "runs": len(runs), "solutions": len(ms),
              "lost": sum(x["lost"] for x in runs), "latency_ms": lm,
              "p50_per_run": [x["latency_ms"]["p50"] for x in runs],
-             "p99_per_run": [x["latency_ms"]["p99"] for x in runs]}
+             "p99_per_run": [x["latency_ms"]["p99"] for x in runs], "ins_hop_ms": ins_hop, "solution_hop_ms": sol_hop}
         results.append(r)
         print(f"latency    {r['via']:<13} IMU publish -> solution receive at 200 Hz: p50 {lm['p50']:.3f} ms, "
               f"p90 {lm['p90']:.3f} ms, p99 {lm['p99']:.3f} ms, max {lm['max']:.3f} ms "
               f"({r['solutions']} solutions over {len(runs)} runs, lost {r['lost']}; per run p50 "
-              f"{r['p50_per_run']}, p99 {r['p99_per_run']})", flush=True)
+              f"{r['p50_per_run']}, p99 {r['p99_per_run']}; ins hop p50 {ins_hop['p50']:.3f} ms, p99 "
+              f"{ins_hop['p99']:.3f} ms; solution hop p50 {sol_hop['p50']:.3f} ms, p99 {sol_hop['p99']:.3f} ms)",
+              flush=True)
     return results
 
 
@@ -393,7 +407,7 @@ def main() -> int:
             print(f"stages (us per IMU sample, in-process, batch {b:>3}): decode+validate {c['decode_validate']}, "
                   f"merge {c['merge']}, ins whole path {c['ins']} (engine included)"
                   + (f", with --compiled {c['ins_compiled']}" if "ins_compiled" in c else "")
-                  + f", solution build+encode {c['solution_msg']}", flush=True)
+                  + f", solution packed {c['solution_msg']}", flush=True)
     if args.only in (None, "throughput"):
         kinds = ["bus", "ins"] + ([] if args.no_compiled or args.batch <= 1 else ["ins-compiled"]) + \
             ([] if args.no_learn else ["learn"])

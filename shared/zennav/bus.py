@@ -188,6 +188,16 @@ class Publisher:
             self.latest = payload
         return payload
 
+    def put_packed(self, pack: Callable[..., bytes], *fields) -> bytes:
+        """Publish pack(*fields, src, seq, pub_ns), a message packed without a map (zennav.messages.SolutionPacker),
+        stamped as put stamps one; returns the payload."""
+        payload = pack(*fields, self.bus.src, self.seq, time.time_ns())
+        self._pub.put(payload)
+        self.seq += 1
+        if self._queryable is not None:
+            self.latest = payload
+        return payload
+
     def put_raw(self, payload: bytes, attachment: bytes | None = None) -> None:
         """Publish bytes as they are (bus replay, tests injecting bad payloads, the ROS 2 bridge's CDR with its
         rmw_zenoh attachment)."""

@@ -210,7 +210,7 @@ def run_replay(
             compiled()  # numba loads before the clock starts (start-up, not the loop)
         block_args = (np.ascontiguousarray(imu.t_ns, dtype=np.int64), np.ascontiguousarray(imu.dtheta, dtype=float),
                       np.ascontiguousarray(imu.dvel, dtype=float))
-        rows, row_std = np.empty((len(imu), 10)), np.empty((len(imu), 3))
+        rows, row_std = np.empty((len(imu), 10)), np.empty((len(imu), 9))
         others = [j for j, kind in enumerate(kinds) if kind != "imu"] + [len(events)]  # events that are not IMU
         dtheta, dvel = block_args[1], block_args[2]  # rows of the samples that go step by step
     else:
@@ -244,7 +244,7 @@ def run_replay(
                 n_run = k_end - k
                 t_out[i:i + n_run] = block_args[0][k:k_end]
                 out[i:i + n_run] = rows[k:k_end]
-                std[i:i + n_run] = row_std[k:k_end]
+                std[i:i + n_run] = row_std[k:k_end, :3]
                 outage[i:i + n_run] = nav.gnss_state != "valid"
                 i += n_run
                 e += n_run - 1

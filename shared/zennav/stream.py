@@ -119,14 +119,17 @@ class StreamFollower:
     without a message of it (inf: only after its end); max_step_s: the most a sample may run ahead of the
     stream's time per cseq [s]; max_hold, timeout_s: the merge's reorder window (zennav.messages.SequenceMerger).
     on_flush(): called at the end of every call that may have handed samples on (on_message, tick, backfill): a
-    consumer that collects samples (the ins's block loop over an imu_batch) processes them there."""
+    consumer that collects samples (the ins's block loop over an imu_batch) processes them there.
+    on_batch(key, msg) (None: not used): an imu_batch whose samples all come next in cseq order (nothing held) and
+    each continue the time chain, handed on whole (the merge and the chain advanced as by its samples one by one:
+    the same order, checks and counts); any other imu_batch goes to on_sample sample by sample."""
 
     def __init__(self, on_start: Callable, on_sample: Callable, on_end: Callable,
                  fetch_start: Callable[[str], dict | None] | None = None, log: logging.Logger | None = None,
                  retry_every: int = 1000, max_hold: int = 1 << 16, timeout_s: float = 5.0,
                  takeover_after_s: float = 10.0, max_step_s: float = 1.0, on_resume: Callable | None = None,
-                 on_flush: Callable[[], None] | None = None):
-        self.on_start, self.on_sample, self.on_end = on_start, on_sample, on_end
+                 on_flush: Callable[[], None] | None = None, on_batch: Callable[[str, dict], None] | None = None):
+        self.on_start, self.on_sample, self.on_end, self.on_batch = on_start, on_sample, on_end, on_batch
         self.on_resume = on_resume
         self.on_flush = on_flush or (lambda: None)
         self.fetch_start = fetch_start
@@ -180,11 +183,30 @@ class StreamFollower:
         assert merger is not None  # _begin sets it with src: a message of the live (or just joined) stream
         self._busy = True
         try:
-            for m in M.samples(msg):
-                merger.push(m["cseq"], (key, m), self._release)
+            if self.on_batch is not None and msg["schema"] == "imu_batch" and self._in_order(msg, merger):
+                self.on_batch(key, msg)
+            else:
+                for m in M.samples(msg):
+                    merger.push(m["cseq"], (key, m), self._release)
             self.on_flush()
         finally:
             self._busy = False
+
+    def _in_order(self, msg: dict, merger: M.SequenceMerger) -> bool:
+        """The imu_batch msg's samples come next (nothing held) and each continues the time chain, as _accept
+        judges an IMU sample at its turn: the merge and the chain advanced past them (True), or nothing done."""
+        if msg["cseq"] != merger.next:
+            return False
+        t_ref = self.t_ref
+        for t, dt in zip(msg["t_ns_list"], msg["dt_ns_list"]):
+            if t - dt != t_ref:
+                return False
+            t_ref = t
+        n = len(msg["t_ns_list"])
+        if not merger.advance(n):
+            return False
+        self.t_ref, self._refused, self._last_cseq = t_ref, 0, msg["cseq"] + n - 1
+        return True
 
     def _live(self) -> bool:
         """A stream is live: started, not ended, and heard from within takeover_after_s."""

@@ -7,6 +7,7 @@ import re
 
 import msgpack
 import numpy as np
+import pytest
 from zennav_harness import Collector, wait_until
 
 from zennav import messages as M
@@ -75,13 +76,15 @@ def test_pipeline_10min_200hz_full_speed_equals_replay_no_loss(cluster):
     assert cluster.bus.rejected == {}
 
 
-def test_batched_ingest_gives_the_same_solution(cluster):
-    """ingest --batch 7 (imu_batch messages, cut before every GNSS fix): the same 24,000 solutions as the
+@pytest.mark.parametrize("ins_args", [(), ("--compiled",)], ids=["step", "compiled"])
+def test_batched_ingest_gives_the_same_solution(cluster, ins_args):
+    """ingest --batch 7 (imu_batch messages, cut before every GNSS fix), to the step-wise ins and to the ins's
+    compiled block loop (whole batches, solutions packed from its rows): the same 24,000 solutions as the
     in-process replay, bit for bit, one per IMU sample, nothing lost or duplicated."""
     k = cluster.keys
     sols = Collector(cluster.bus, k.nav_solution())
     status = Collector(cluster.bus, k.nav_status(), channel="ring")
-    cluster.service("ins")
+    cluster.service("ins", *ins_args, timeout=120)  # --compiled: the first run on a machine compiles the kernels
     ing = cluster.service("ingest", "sim:car", "-o", "duration_s=120", "--speed", "0", "--batch", "7",
                           "--outage", "50:20", wait=False)
     ref = _replay(120.0, [(50.0, 20.0)])

@@ -299,3 +299,36 @@ def test_euler_list_is_the_rotation_helper():
     qs += [rotvec_to_quat([0.0, np.pi / 2 - e, 0.3]) for e in (1e-3, 1e-7, 0.0)]
     for q in qs:
         assert np.allclose(M.euler_list(*q.tolist()), quat_to_euler(q), rtol=0, atol=2e-15), q
+
+
+def test_solution_packer_gives_the_bytes_of_the_map():
+    """SolutionPacker (the ins's hot path) packs exactly encode() of the nav_solution map that
+    nav_solution_msg_of_row builds and Publisher.put stamps: random floats (signs, subnormals, huge), every GNSS
+    state, and ints at each of msgpack's size boundaries (t_ns, cseq, publish times, seq)."""
+    rng = np.random.default_rng(11)
+    packer = M.SolutionPacker()
+    bounds = [0, 1, 127, 128, 255, 256, 65535, 65536, 2**32 - 1, 2**32, 2**63 - 1, -1, -32, -33, -128, -129,
+              -32768, -32769, -2**31, -2**31 - 1, -2**63]
+
+    class Nav:
+        gyro_bias = [1e-5, -2e-6, 3.5e-300]
+        accel_bias = [0.01, -0.02, 5e-324]
+
+    for k in range(400):
+        std = list(np.abs(rng.normal(size=9)))
+        if k % 2:  # extreme values
+            row = list(rng.normal(size=10) * 10.0 ** rng.integers(-300, 300, size=10))
+            ints = [int(x) for x in rng.choice(bounds, size=5)]
+        else:  # a realistic solution
+            q = rng.normal(size=4)
+            row = [0.6, 2.1, 50.0, *rng.normal(size=3), *(q / np.linalg.norm(q))]
+            ints = [356400 * 10**9 + k, k, 1_700_000_000 * 10**9, k, 1_700_000_001 * 10**9]
+        Nav.gnss_state = ("valid", "outage", "unknown")[k % 3]
+        t_ns, cseq, imu_pub, seq, pub = ints
+        m = M.nav_solution_msg_of_row(Nav, t_ns, row, std[0:3], std[3:6], std[6:9], cseq, imu_pub)
+        m.update(src="ins.4f2a", seq=seq, pub_ns=pub)
+        b = packer.pack(t_ns, row, std, Nav.gyro_bias, Nav.accel_bias, Nav.gnss_state, cseq, imu_pub, "ins.4f2a",
+                        seq, pub)
+        assert b == M.encode(m), k
+        if k % 2 == 0:  # a realistic message: valid on the bus
+            assert M.validate_map(M.decode(b)) == "", k

@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--compiled", action="store_true",
                    help="run the IMU samples of each imu_batch message through the engine's block loop compiled by "
                         "numba (the same solutions; the engine's CPU per sample about 15x less, the whole ins's about "
-                        "2.5x with a solution per sample, benchmarks/bus_throughput.py; numba and the kernels add "
+                        "2.7x with a solution per sample, benchmarks/bus_throughput.py; numba and the kernels add "
                         "about 115 MB resident memory, benchmarks/memory.py; compiled once per machine, loaded in "
                         "about a second; not with --learning, whose tap takes every sample step-wise)")
     p.add_argument("--attitude-alignment", action="store_true",
@@ -125,6 +125,11 @@ def main(argv=None) -> int:
     def publish(kind: str, msg: dict) -> None:
         (bus.publisher(out.nav_aid(msg["source"])) if kind == "aid" else pubs[kind]).put(msg)
 
+    pack, put_packed = M.SolutionPacker().pack, pubs["solution"].put_packed
+
+    def put_solution(nav, t_ns: int, row, std: list, cseq: int, pub_ns: int) -> None:  # packed straight to bytes
+        put_packed(pack, t_ns, row, std, nav.gyro_bias, nav.accel_bias, nav.gnss_state, cseq, pub_ns)
+
     learn = None
     if args.learning:
         from zennav.nav.learning import TARGETS
@@ -149,7 +154,7 @@ def main(argv=None) -> int:
                    checkpoint=Checkpointer(args.checkpoint, args.checkpoint_every), bridge_max_s=args.bridge_max,
                    takeover_after_s=args.takeover_after,
                    aid_keys={"dvl": k.dvl(args.dvl_id), "depth": k.depth(args.depth_id)},
-                   block_loop="compiled" if args.compiled else None)
+                   block_loop="compiled" if args.compiled else None, put_solution=put_solution)
     run.counters = lambda: {**node.counters(), "missed": sum(bus.missed.values())}
     on_sensor = lambda key, msg, recv_ns: node.on_sensor(key, msg)  # noqa: E731
     backfill = None

@@ -47,6 +47,7 @@ from .learn import (
 )
 from .nav import (
     ALIGN_STATES,
+    SolutionPacker,
     aid_report_msg,
     alignment_map,
     attitude_msg,
@@ -109,6 +110,6 @@ __all__ = [
     "nav_solution_msg", "nav_solution_msg_of", "nav_solution_msg_of_row", "nav_status_msg", "noise_map", "OPT",
     "params_checksum",
     "PARAMSET_FORMAT", "paramset_of", "pyval", "QoS", "qos_of", "qos_table", "ROOT", "samples", "Schema",
-    "SCHEMAS", "SENSOR", "SequenceMerger", "SERVICE_STATES", "service_status_msg", "STR", "Stream",
+    "SCHEMAS", "SENSOR", "SequenceMerger", "SERVICE_STATES", "SolutionPacker", "service_status_msg", "STR", "Stream",
     "STREAM_BY_NAME", "stream_of", "STREAMS", "STRS", "validate_map", "ValidationError", "Validator", "VEC",
 ]

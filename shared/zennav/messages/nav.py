@@ -3,12 +3,14 @@ record, on ``nav/aid/<source>``) and nav_status, with their builders."""
 from __future__ import annotations
 
 import math
+import struct
 
+import msgpack
 import numpy as np
 
 from .codec import floats, make
 from .keys import CHUNK
-from .schema import BOOL, FLOAT, FLOATS, INT, MAP, OPT, STR, STRS, VEC, define
+from .schema import BOOL, FLOAT, FLOATS, INT, MAP, OPT, SCHEMAS, STR, STRS, VEC, define
 
 ALIGN_STATES = ("coarse", "fine", "aligned")
 
@@ -157,6 +159,74 @@ def nav_solution_msg_of_row(nav, t_ns: int, row, std_pos_ned: list, std_v_n: lis
                 euler=euler_list(q0, q1, q2, q3), gyro_bias=_as_list(nav.gyro_bias),
                 accel_bias=_as_list(nav.accel_bias), std_pos_ned=std_pos_ned, std_v_n=std_v_n, std_euler=std_euler,
                 gnss_state=str(nav.gnss_state), imu_cseq=int(imu_cseq), imu_pub_ns=int(imu_pub_ns))
+
+
+_U8, _U16, _U32, _U64 = (struct.Struct(f">B{c}").pack for c in "BHIQ")
+_I8, _I16, _I32, _I64 = (struct.Struct(f">B{c}").pack for c in "bhiq")
+
+
+def _int(n: int) -> bytes:
+    """msgpack's encoding of the int n (the smallest of its formats, as msgpack.Packer chooses)."""
+    if n >= 0x100000000:  # the common case first: times in ns
+        return _U64(0xcf, n)
+    if n >= 0:
+        if n < 0x80:
+            return bytes((n,))
+        if n < 0x100:
+            return _U8(0xcc, n)
+        if n < 0x10000:
+            return _U16(0xcd, n)
+        return _U32(0xce, n)
+    if n >= -32:
+        return bytes((n & 0xff,))
+    if n >= -0x80:
+        return _I8(0xd0, n)
+    if n >= -0x8000:
+        return _I16(0xd1, n)
+    return _I32(0xd2, n) if n >= -0x80000000 else _I64(0xd3, n)
+
+
+class SolutionPacker:
+    """nav_solution messages packed straight into msgpack bytes: ``pack(...)`` returns exactly ``encode`` of the map
+    that nav_solution_msg_of_row builds, stamped as zennav.bus.Publisher.put stamps it (src, seq, pub_ns), in a
+    fraction of the time (the ins's hot path: one per IMU sample at tens of kHz; tests/unit/test_messages.py ties the
+    two). The 28 floats go through one struct format whose constant pieces (keys, array headers, float markers) are
+    fixed arguments; ints and strings take msgpack's smallest encodings. Not thread-safe (one per publisher)."""
+
+    _ARRAYS = (("llh", 3), ("v_n", 3), ("q_nb", 4), ("euler", 3), ("gyro_bias", 3), ("accel_bias", 3),
+               ("std_pos_ned", 3), ("std_v_n", 3), ("std_euler", 3))
+
+    def __init__(self) -> None:
+        key = msgpack.packb
+        pieces = []  # the constant bytes before each float
+        for name, n in self._ARRAYS:
+            pieces += [key(name) + bytes((0x90 + n, 0xcb))] + [b"\xcb"] * (n - 1)
+        self._floats = struct.Struct(">" + "".join(f"{len(c)}sd" for c in pieces)).pack
+        self._args: list = [x for c in pieces for x in (c, 0.0)]
+        fields = 3 + len(self._ARRAYS) + 3 + 3  # header, arrays, gnss_state/imu_cseq/imu_pub_ns, src/seq/pub_ns
+        self._head = b"\xde" + fields.to_bytes(2, "big") + key("schema") + key("nav_solution") + key("v") + \
+            key(SCHEMAS["nav_solution"].version) + key("t_ns")
+        self._k_state, self._k_cseq, self._k_imu_pub, self._k_src, self._k_seq, self._k_pub = (
+            key(k) for k in ("gnss_state", "imu_cseq", "imu_pub_ns", "src", "seq", "pub_ns"))
+        self._strs: dict[object, bytes] = {}
+
+    def _str(self, s) -> bytes:
+        """msgpack of str(s), cached by s (a GNSS state, the publisher's src)."""
+        b = self._strs.get(s)
+        if b is None:
+            b = self._strs[s] = msgpack.packb(str(s))
+        return b
+
+    def pack(self, t_ns: int, row, std: list, gyro_bias, accel_bias, gnss_state, imu_cseq: int, imu_pub_ns: int,
+             src: str, seq: int, pub_ns: int) -> bytes:
+        """The message at t_ns [ns] of the navigation state row (10 floats: lat, lon [rad], h [m], v_n [m/s, NED],
+        q_nb) with std (9 floats: the 1-sigma of position [m], velocity [m/s], attitude [rad]), the biases (3 floats
+        each) and GNSS state, of the IMU sample imu_cseq published at imu_pub_ns, stamped src, seq, pub_ns."""
+        args = self._args
+        args[1::2] = (*row, *euler_list(row[6], row[7], row[8], row[9]), *gyro_bias, *accel_bias, *std)
+        return b"".join((self._head, _int(t_ns), self._floats(*args), self._k_state, self._str(gnss_state),
+                         self._k_cseq, _int(imu_cseq), self._k_imu_pub, _int(imu_pub_ns), self._k_src, self._str(src),
+                         self._k_seq, _int(seq), self._k_pub, _int(pub_ns)))
 
 
 def attitude_msg(t_ns: int, q_nb: list, gyro_bias: list, weight: float, omega_in_n, accel_b=None,

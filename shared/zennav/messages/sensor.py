@@ -313,6 +313,14 @@ class SequenceMerger:
             return None
         return self.next, self._heap[0] - 1, self._clock() - self._hole_since
 
+    def advance(self, n: int) -> bool:
+        """n items in order at cseq next, each accepted as push would (the caller checked them): next moves past
+        them, as n pushes of the common case. False (nothing done) unless nothing is held."""
+        if self._heap:
+            return False
+        self.next += n
+        return True
+
     def touch(self) -> None:
         """The hole is being filled (a backfill): wait timeout_s more for it before it is skipped."""
         self._hole_since = self._clock()

@@ -219,13 +219,16 @@ def run_block(t_ns, dtheta, dvel, k0, k1, t_prev_ns, stop_ns, outage_from_ns, ti
     State in place: nav (10: lat, lon, h, v_n, q_nb), prev (6: the last corrected increments), cov (7: time [s],
     velocity and angle increments summed since the last propagation), P (n, n); bias (6: gyro, accelerometer) and
     aug_x (the augmented states' values; scale factors from sg0 and sa0 when sg0 >= 0) are read. Row k of out_nav
-    (N, 10) and out_std (N, 3: position 1-sigma [m, NED]) is the solution after sample k. Returns the index of the
-    first sample not run (k1 when all ran)."""
+    (N, 10) and out_std (N, 9: the 1-sigma of position [m, NED], velocity [m/s, NED] and attitude error [rad], the
+    square roots of P's first nine diagonal elements, as Navigator._update_stds) is the solution after sample k.
+    Returns the index of the first sample not run (k1 when all ran)."""
     lat, lon, h, vn, ve, vd, q0, q1, q2, q3 = nav[0], nav[1], nav[2], nav[3], nav[4], nav[5], nav[6], nav[7], \
         nav[8], nav[9]
     px, py, pz, wx, wy, wz = prev[0], prev[1], prev[2], prev[3], prev[4], prev[5]
     cdt, cv0, cv1, cv2, ct0, ct1, ct2 = cov[0], cov[1], cov[2], cov[3], cov[4], cov[5], cov[6]
-    sd0, sd1, sd2 = math.sqrt(P[0, 0]), math.sqrt(P[1, 1]), math.sqrt(P[2, 2])
+    sd = np.empty(9)
+    for m in range(9):
+        sd[m] = math.sqrt(P[m, m])
     bg0, bg1, bg2, ba0, ba1, ba2 = bias[0], bias[1], bias[2], bias[3], bias[4], bias[5]
     k = k0
     while k < k1:
@@ -262,11 +265,12 @@ def run_block(t_ns, dtheta, dvel, k0, k1, t_prev_ns, stop_ns, outage_from_ns, ti
                                  ct1 / cdt, ct2 / cdt, q_psd, aug_decay, sg0, sa0, gb, ab, cdt)
             P[:, :] = propagate(P, Phi, Qd)
             cdt, cv0, cv1, cv2, ct0, ct1, ct2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-            sd0, sd1, sd2 = math.sqrt(P[0, 0]), math.sqrt(P[1, 1]), math.sqrt(P[2, 2])
+            for m in range(9):
+                sd[m] = math.sqrt(P[m, m])
         row = out_nav[k]
         row[0], row[1], row[2], row[3], row[4] = lat, lon, h, vn, ve
         row[5], row[6], row[7], row[8], row[9] = vd, q0, q1, q2, q3
-        out_std[k, 0], out_std[k, 1], out_std[k, 2] = sd0, sd1, sd2
+        out_std[k, :] = sd
         k += 1
     nav[0], nav[1], nav[2], nav[3], nav[4], nav[5], nav[6], nav[7], nav[8], nav[9] = lat, lon, h, vn, ve, vd, q0, \
         q1, q2, q3
@@ -301,5 +305,5 @@ def compiled() -> types.SimpleNamespace:
         z2, zi = np.zeros((1, 3)), np.zeros(1, dtype=np.int64)
         _compiled.run_block(zi, z2, z2, 0, 0, 0, 0, 0, 1.0, np.zeros(10), np.zeros(6), np.zeros(0), -1, -1,
                             np.zeros(6), np.zeros(7), np.eye(N_INS), np.zeros(N_INS), np.zeros(0), -1.0, -1.0, 0.0,
-                            np.zeros((1, 10)), z2)
+                            np.zeros((1, 10)), np.zeros((1, 9)))
     return _compiled

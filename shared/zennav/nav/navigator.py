@@ -190,9 +190,10 @@ class Navigator:
         on_imu would, in one loop (zennav.nav.kernels.run_block; compiled by numba with jit), until k1 or before the
         first sample that needs the step-wise engine: one at or after stop_ns or a queued GNSS fix (to fuse in it),
         one that a source's on_step acts on (the outage declaration, a constraint's update), one to reject.
-        Row k of out_nav (N, 10: lat, lon, h, v_n, q_nb) and out_std (N, 3: position 1-sigma [m, NED]) is the solution
-        after sample k. With learning, also before the first sample at which the tap may query
-        (LearningTap.next_query_ns); the tap's windows take the stretch's increments at once (LearningTap.on_block).
+        Row k of out_nav (N, 10: lat, lon, h, v_n, q_nb) and out_std (N, 9: the 1-sigma of position [m, NED], velocity
+        [m/s, NED] and attitude error [rad], as std_pos_ned, std_v_n, std_att) is the solution after sample k. With
+        learning, also before the first sample at which the tap may query (LearningTap.next_query_ns); the tap's
+        windows take the stretch's increments at once (LearningTap.on_block).
         Returns the index of the first sample not processed; k0 (none) while the engine takes every sample step-wise:
         coarse alignment, a shadow INS of the learning tap, a smoother recorder, a source acting at any sample."""
         tap = self.tap
@@ -386,17 +387,6 @@ class Navigator:
             omega_ib_b /= 1.0 + self.aug_value(self._scale[0])
             f_b /= 1.0 + self.aug_value(self._scale[1])
         return omega_ib_b, f_b, dt
-
-    def covariance_due(self, t_ns: list, k0: int, k1: int) -> int:
-        """Index after the first of the IMU samples t_ns[k0:k1] [ns] after which the covariance is propagated
-        (cov_interval_s of IMU time summed, as _advance and kernels.run_block sum it); k1 when none is."""
-        cdt, t_prev, interval = self._cov_dt, self.t_ns, self.config.cov_interval_s
-        for k in range(k0, k1):
-            cdt += (t_ns[k] - t_prev) / NS
-            if cdt >= interval and cdt > 0.0:
-                return k + 1
-            t_prev = t_ns[k]
-        return k1
 
     def solution(self) -> NavSolution:
         s = self.state

@@ -14,8 +14,8 @@ longer gap the ins re-aligns as a late joiner. Learning (a LearningLink given; o
 emits training samples and queries (NavConfig.learning), the link publishes them and fuses the answers
 (zennav.learn.link). Block loop (``block_loop``, learning off): the IMU samples of one sensor message (an imu_batch)
 are collected and run through the engine's block loop (Navigator.run_imu: compiled by numba, or as Python), up to
-each covariance propagation, GNSS fix or sample the step-wise engine must take, which on_imu takes as without it;
-every sample's solution is the step-wise one, float for float.
+each GNSS fix or sample the step-wise engine must take, which on_imu takes as without it; the loop's rows (each
+sample's navigation state and 1-sigma) make every sample's solution the step-wise one, float for float.
 """
 from __future__ import annotations
 
@@ -47,13 +47,15 @@ class InsNode:
     are held until it is processed and then go to ``Navigator.on_aid`` before its solution is published, as the
     in-process replay hands them over (zennav.replay.run_replay). block_loop: "compiled" (numba) or "python" runs
     the IMU samples of one message through the engine's block loop (module docstring; None, or learning on: each
-    sample step-wise)."""
+    sample step-wise). put_solution(nav, t_ns, row, std, cseq, pub_ns) publishes one solution from its floats (row:
+    the 10 of the navigation state, std: the 9 1-sigma; the service packs them straight into bytes,
+    zennav.messages.SolutionPacker); None: publish("solution", its message map)."""
 
     def __init__(self, publish, log, filter_params: dict | None = None, solution_every: int = 1,
                  status_period_ns: int = 1_000_000_000, on_state=None, bus_rejected=None,
                  learning: LearningLink | None = None, fetch_start=None, imu_key=None, gnss_key=None,
                  checkpoint: Checkpointer | None = None, bridge_max_s: float = 0.5, takeover_after_s: float = 10.0,
-                 aid_keys: dict | None = None, block_loop: str | None = None):
+                 aid_keys: dict | None = None, block_loop: str | None = None, put_solution=None):
         self.publish, self.log = publish, log
         self.filter_params = dict(filter_params or {})
         self.learn = learning  # None: learning off (the default; the engine runs exactly as in the replay)
@@ -63,12 +65,15 @@ class InsNode:
         self.status_period_ns = status_period_ns
         self.keys = {"imu": imu_key, "gnss": gnss_key, **{a: None for a in M.AID_STREAMS}, **(aid_keys or {})}
         self.follower = StreamFollower(self._start, self._sample, self._end, fetch_start, log,
-                                       takeover_after_s=takeover_after_s, on_resume=self._resume, on_flush=self._flush)
+                                       takeover_after_s=takeover_after_s, on_resume=self._resume, on_flush=self._flush,
+                                       on_batch=self._batch)
         if block_loop not in (None, "compiled", "python"):
             raise ValueError(f"block_loop {block_loop!r}: compiled, python or None")
         self.block_loop = block_loop if learning is None else None  # the learning tap takes every sample step-wise
         self._block: list[dict] = []  # IMU samples collected for the block loop (block_loop)
         self.on_sensor = self.follower.on_message
+        self.put_solution = put_solution or self._solution_map
+        self._std_of: tuple = (None, [])  # the engine's std_pos_ned and the 9 floats of _std
         self.nav: Navigator | None = None
         self.imu_count = self.gnss_count = self.sol_count = self.corrections = self.attitude_taken = 0
         self.aid_count: Counter[str] = Counter()  # aid samples consumed per stream (dvl, depth)
@@ -191,6 +196,29 @@ class InsNode:
             return
         self._imu(nav, msg)
 
+    def _batch(self, key: str, msg: dict) -> None:
+        """An imu_batch that continues the stream (StreamFollower.on_batch): with the block loop, right after the last
+        IMU interval and no aid sample held, run from its arrays (_run); else its samples one by one (_sample)."""
+        t = msg["t_ns_list"]
+        if self.block_loop is None or self._held or self.keys["imu"] not in (None, key) \
+                or t[0] - msg["dt_ns_list"][0] != self._t_imu:
+            for m in M.samples(msg):
+                self._sample(key, m)
+            return
+        self._flush()
+        n, c = len(t), msg["cseq"]
+        self.imu_count += n
+        self._t_imu = t[-1]
+        one: list = []  # its samples as imu messages, built only for one the step-wise engine takes
+
+        def sample(i: int) -> dict:
+            if not one:
+                one.extend(M.samples(msg))
+            return one[i]
+
+        self._run(t, np.array(msg["dtheta"], dtype=float).reshape(n, 3),
+                  np.array(msg["dvel"], dtype=float).reshape(n, 3), range(c, c + n), [msg["pub_ns"]] * n, sample)
+
     def _imu(self, nav: Navigator, msg: dict) -> None:
         """One IMU sample step-wise (Navigator.on_imu), then what follows every sample: the held aid samples, the
         reports, the learning link, the solution, the status and the checkpoint when due."""
@@ -204,62 +232,77 @@ class InsNode:
         if ok:
             self.sol_count += 1
             if self.sol_count % self.solution_every == 0:
-                self.publish("solution", M.nav_solution_msg_of(nav, msg["cseq"], msg["pub_ns"]))
-        self._after(nav, msg)
+                s = nav.state
+                self.put_solution(nav, nav.t_ns, (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3),
+                                  self._std(nav), msg["cseq"], msg["pub_ns"])
+        self._after(nav, msg["t_ns"], msg["cseq"])
 
-    def _after(self, nav: Navigator, msg: dict) -> None:
-        """After the IMU sample msg (or a block ending with it): the status when the GNSS or alignment state
-        changed or a status period passed, the checkpoint when due."""
+    def _std(self, nav: Navigator) -> list:
+        """The engine's 1-sigma of position, velocity and attitude (9 floats), converted once per change: the engine
+        replaces its three std arrays together (Navigator._update_stds, set_state), never mutates them."""
+        if self._std_of[0] is not nav.std_pos_ned:
+            self._std_of = (nav.std_pos_ned, nav.std_pos_ned.tolist() + nav.std_v_n.tolist() + nav.std_att.tolist())
+        return self._std_of[1]
+
+    def _solution_map(self, nav: Navigator, t_ns: int, row, std: list, cseq: int, pub_ns: int) -> None:
+        """put_solution's default: the solution message's map to publish("solution", ...)."""
+        self.publish("solution", M.nav_solution_msg_of_row(nav, t_ns, row, std[0:3], std[3:6], std[6:9], cseq,
+                                                           pub_ns))
+
+    def _after(self, nav: Navigator, t_ns: int, cseq: int) -> None:
+        """After the IMU sample at t_ns [ns] of cseq (or a block ending with it): the status when the GNSS or
+        alignment state changed or a status period passed, the checkpoint when due."""
         states = (nav.gnss_state, nav.align_state)
-        if states != self._states or msg["t_ns"] >= self._next_status_t:
+        if states != self._states or t_ns >= self._next_status_t:
             self._states = states
-            while self._next_status_t <= msg["t_ns"]:
+            while self._next_status_t <= t_ns:
                 self._next_status_t += self.status_period_ns
             self.publish("status", self.status_msg())
-        if self.checkpoint.due(msg["t_ns"]):
-            self._write_checkpoint(msg)
+        if self.checkpoint.due(t_ns):
+            self._write_checkpoint(t_ns, cseq)
 
     def _flush(self) -> None:
-        """The IMU samples collected for the block loop: run by Navigator.run_imu up to each covariance propagation
-        (Navigator.covariance_due: the velocity and attitude 1-sigma of the samples before it are the ones before
-        the block), each sample it leaves to the step-wise engine taken by _imu; a solution per sample."""
-        block, nav = self._block, self.nav
+        """The IMU samples collected for the block loop (imu messages) through _run."""
+        block = self._block
         if not block:
             return
         self._block = []
-        assert nav is not None
         n = len(block)
-        t = [m["t_ns"] for m in block]
+        self._run([m["t_ns"] for m in block], np.array([m["dtheta"] for m in block], dtype=float).reshape(n, 3),
+                  np.array([m["dvel"] for m in block], dtype=float).reshape(n, 3), [m["cseq"] for m in block],
+                  [m["pub_ns"] for m in block], block.__getitem__)
+
+    def _run(self, t: list, dtheta: np.ndarray, dvel: np.ndarray, cseq, pub_ns: list, sample) -> None:
+        """IMU samples t [ns] (increments dtheta, dvel (n, 3) [rad, m/s, body]; the IMU messages' cseq and pub_ns)
+        through the block loop, Navigator.run_imu (its rows: each sample's navigation state and 1-sigma), each sample
+        it leaves to the step-wise engine taken by _imu (sample(i): its imu message); a solution per sample."""
+        nav = self.nav
+        assert nav is not None
+        n = len(t)
         t_ns = np.array(t, dtype=np.int64)
-        dtheta = np.array([m["dtheta"] for m in block], dtype=float)
-        dvel = np.array([m["dvel"] for m in block], dtype=float)
-        out_nav, out_std = np.empty((n, 10)), np.empty((n, 3))
-        jit, every = self.block_loop == "compiled", self.solution_every
+        out_nav, out_std = np.empty((n, 10)), np.empty((n, 9))
+        jit, every, put = self.block_loop == "compiled", self.solution_every, self.put_solution
         k = 0
         while k < n:
-            std_v, std_e = M.floats(nav.std_v_n), M.floats(nav.std_att)
-            k1 = nav.run_imu(t_ns, dtheta, dvel, k, nav.covariance_due(t, k, n), 2**62, out_nav, out_std, jit)
+            k1 = nav.run_imu(t_ns, dtheta, dvel, k, n, 2**62, out_nav, out_std, jit)
             if k1 == k:  # the step-wise engine's sample (a fix in it, an outage declaration, a rejection, ...)
-                self._imu(nav, block[k])
+                self._imu(nav, sample(k))
                 k += 1
                 continue
-            for i, (row, std_pos) in enumerate(zip(out_nav[k:k1].tolist(), out_std[k:k1].tolist()), k):
+            for i, row, std in zip(range(k, k1), out_nav[k:k1].tolist(), out_std[k:k1].tolist()):
                 self.sol_count += 1
                 if self.sol_count % every == 0:
-                    if i == k1 - 1:  # the last one: after a covariance propagation
-                        std_v, std_e = M.floats(nav.std_v_n), M.floats(nav.std_att)
-                    m = block[i]
-                    self.publish("solution", M.nav_solution_msg_of_row(nav, t[i], row, std_pos, std_v, std_e,
-                                                                       m["cseq"], m["pub_ns"]))
-            self._after(nav, block[k1 - 1])
+                    put(nav, t[i], row, std, cseq[i], pub_ns[i])
+            self._after(nav, t[k1 - 1], cseq[k1 - 1])
             k = k1
 
-    def _write_checkpoint(self, msg: dict) -> None:
-        """The state after msg (an IMU sample): the stream resumes at the next cseq (zennav.checkpoint)."""
+    def _write_checkpoint(self, t_ns: int, cseq: int) -> None:
+        """The state after the IMU sample at t_ns [ns] of cseq: the stream resumes at the next cseq
+        (zennav.checkpoint)."""
         nav, start = self.nav, self.follower.start
         assert nav is not None and start is not None
         try:
-            self.checkpoint.write({"start": start, "next_cseq": msg["cseq"] + 1, "t_ref_ns": msg["t_ns"],
+            self.checkpoint.write({"start": start, "next_cseq": cseq + 1, "t_ref_ns": t_ns,
                                    "initial": self._initial, "late": self._late, "nav": nav.get_state(),
                                    "counts": [self.imu_count, self.gnss_count, self.sol_count],
                                    "aid_counts": dict(self.aid_count),
