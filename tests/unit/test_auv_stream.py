@@ -213,6 +213,26 @@ def test_dives_score_each_stretch_under_water():
     assert d["drift_pct"] == pytest.approx(100.0 * d["end_horizontal_m"] / d["distance_m"])
 
 
+def test_replay_metrics_of_an_auv_score_its_dives():
+    """`zennav replay sim:auv` (evaluate, format_table): metrics.json carries each dive's drift, the table a row per
+    dive, as the page of `zennav report`; a car (no DVL, no depth sensor) gets no dive entry, whatever its heights."""
+    from zennav.metrics import dives, evaluate, format_table
+    from zennav.report import accuracy_rows
+
+    ds = auv_like(40.0)
+    res = run_replay(ds)
+    m = evaluate(ds, res)
+    (d,) = m["dives"]
+    assert m["dives"] == dives(ds, res) and 20.0 < d["start_s"] < 30.0 and d["distance_m"] > 10.0
+    assert d["drift_pct"] == pytest.approx(100.0 * d["end_horizontal_m"] / d["distance_m"])
+    row = next(line for line in format_table(m).splitlines() if line.startswith("under water"))
+    assert f"end {d['end_horizontal_m']:.2f} m" in row and f"drift {d['drift_pct']:.3f} %" in row
+    (page_row,) = [vals for name, vals in accuracy_rows(m) if name.startswith("under water")]  # zennav report's
+    assert page_row == [row.split("  ", 1)[1].strip().rsplit(" of ", 1)[0]]
+    car = load_dataset("sim:car", duration_s=5.0)
+    assert "dives" not in evaluate(car, run_replay(car))
+
+
 def test_monitor_shows_the_dvl_and_depth_records_and_counters():
     """What the ins publishes for an AUV stream, fed to the monitor's core: the nav/aid/dvl and nav/aid/depth
     records per source (fused, rejected), the DVL and depth samples consumed and the engine's partial-beam
