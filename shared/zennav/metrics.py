@@ -179,9 +179,11 @@ UNDERWATER_DEPTH_M = 0.5  # [m] the truth deeper than this below the water surfa
 
 def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_M) -> list[dict]:
     """Each stretch of the truth under water (depth = config.depth_surface_h_m - truth height > min_depth_m [m])
-    inside the solution's span: its start and end [s from the initial time], the horizontal distance travelled
-    [m] (the truth's path), the horizontal error at its end and the largest within it [m], and the drift at its
-    end as a percentage of that distance (the figure INS/DVL navigation is quoted in)."""
+    inside the solution's span, from the dataset's last GNSS fix in it where it has one (A-KIT's derived fixes of
+    the first gnss_s seconds: the drift counts from the last fix, as benchmarks/akit_dvl.py): its start and end
+    [s from the initial time], the horizontal distance travelled [m] (the truth's path), the horizontal error at
+    its end and the largest within it [m], and the drift at its end as a percentage of that distance (the figure
+    INS/DVL navigation is quoted in)."""
     truth = ds.truth
     if truth is None or len(res.t_ns) < 2:
         return []
@@ -192,6 +194,9 @@ def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_
     out = []
     for a, b in zip(edges[0::2], edges[1::2]):
         idx = sel[a:b]
+        fixes = ds.gnss.t_ns[(ds.gnss.t_ns >= truth.t_ns[idx[0]]) & (ds.gnss.t_ns <= truth.t_ns[idx[-1]])]
+        if fixes.size:
+            idx = idx[truth.t_ns[idx] >= fixes[-1]]
         if len(idx) < 2:
             continue
         ref = truth.llh[idx]

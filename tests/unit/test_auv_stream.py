@@ -189,7 +189,8 @@ def test_checkpoint_keeps_the_aid_counts(tmp_path, n):
 
 def test_dives_score_each_stretch_under_water():
     """zennav.metrics.dives: a truth under water between 30 and 50 s (5 m below the surface) and a solution that
-    drifts north at 0.1 m/s from 30 s: one dive, its path length, 2 m error at its end, drift = 2 m / distance."""
+    drifts north at 0.1 m/s from 30 s: one dive, its path length, 2 m error at its end, drift = 2 m / distance;
+    with GNSS fixes under water until 40 s (A-KIT's derived ones), the dive counts from the last, at 40 s."""
     from zennav.metrics import dives, ned_errors
     from zennav.nav import earth
     from zennav.replay import ReplayResult
@@ -197,6 +198,9 @@ def test_dives_score_each_stretch_under_water():
     ds = load_dataset("sim:car", duration_s=60.0)
     tr = ds.truth
     s = (tr.t_ns - ds.initial.t_ns) / 1e9
+    t_fix = (ds.gnss.t_ns - ds.initial.t_ns) / 1e9
+    gnss_until_40 = ds.gnss.slice(t_fix <= 40.0)
+    ds.gnss = ds.gnss.slice((t_fix < 30.0) | (t_fix > 50.0))
     ds.config = ds.config.with_(depth_surface_h_m=0.0)
     tr.llh[:, 2] = np.where((s >= 30.0) & (s < 50.0), -5.0, 0.0)
     north = np.clip(s - 30.0, 0.0, None) * 0.1
@@ -211,6 +215,11 @@ def test_dives_score_each_stretch_under_water():
     assert d["distance_m"] == pytest.approx(np.hypot(step[:, 0], step[:, 1]).sum()) and d["distance_m"] > 50.0
     assert d["end_horizontal_m"] == pytest.approx(2.0, abs=0.01) == d["max_horizontal_m"]
     assert d["drift_pct"] == pytest.approx(100.0 * d["end_horizontal_m"] / d["distance_m"])
+    ds.gnss = gnss_until_40
+    (d40,) = dives(ds, res)
+    assert d40["start_s"] == pytest.approx(40.0, abs=0.02) and d40["end_s"] == d["end_s"]
+    assert d40["distance_m"] == pytest.approx(d["distance_m"] / 2, rel=0.1) and d40["end_horizontal_m"] == d[
+        "end_horizontal_m"]
 
 
 def test_replay_metrics_of_an_auv_score_its_dives():
