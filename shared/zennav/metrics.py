@@ -43,7 +43,8 @@ def _rms(x) -> float | None:
 
 
 def evaluate(ds: Dataset, res: ReplayResult) -> dict:
-    """metrics.json content: whole-run RMS errors and per-outage horizontal drift (see module docstring)."""
+    """metrics.json content: whole-run RMS errors, per-outage horizontal drift and, for a vehicle with a DVL or a
+    depth sensor, each stretch under water with its drift (dives; see module docstring)."""
     duration = (res.t_ns[-1] - res.t_ns[0]) / NS if len(res.t_ns) > 1 else 0.0
     m: dict = {
         "dataset": ds.name,
@@ -101,6 +102,8 @@ def evaluate(ds: Dataset, res: ReplayResult) -> dict:
         peaks = [o["max_horizontal_m"] for o in m["outages"]]
         m["outage_max_horizontal_rms_m"] = _rms(peaks)
         m["outage_max_horizontal_max_m"] = float(max(peaks))
+    if ds.dvl is not None or ds.depth is not None:
+        m["dives"] = dives(ds, res)
     return m
 
 
@@ -130,6 +133,11 @@ def format_table(m: dict) -> str:
     if m["outages"]:
         rows.append(("outage max drift RMS", f(m["outage_max_horizontal_rms_m"], " m")))
         rows.append(("outage max drift max", f(m["outage_max_horizontal_max_m"], " m")))
+    for d in m.get("dives", []):
+        pct = "n/a" if d["drift_pct"] is None else f"{d['drift_pct']:.3f} %"
+        rows.append((f"under water {d['start_s']:.0f}s..{d['end_s']:.0f}s",
+                     f"end {d['end_horizontal_m']:.2f} m, max {d['max_horizontal_m']:.2f} m, drift {pct} of "
+                     f"{d['distance_m']:.0f} m"))
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
@@ -172,9 +180,11 @@ UNDERWATER_DEPTH_M = 0.5  # [m] the truth deeper than this below the water surfa
 
 def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_M) -> list[dict]:
     """Each stretch of the truth under water (depth = config.depth_surface_h_m - truth height > min_depth_m [m])
-    inside the solution's span: its start and end [s from the initial time], the horizontal distance travelled
-    [m] (the truth's path), the horizontal error at its end and the largest within it [m], and the drift at its
-    end as a percentage of that distance (the figure INS/DVL navigation is quoted in)."""
+    inside the solution's span, from the dataset's last GNSS fix in it where it has one (A-KIT's derived fixes of
+    the first gnss_s seconds: the drift counts from the last fix, as benchmarks/akit_dvl.py): its start and end
+    [s from the initial time], the horizontal distance travelled [m] (the truth's path), the horizontal error at
+    its end and the largest within it [m], and the drift at its end as a percentage of that distance (the figure
+    INS/DVL navigation is quoted in)."""
     truth = ds.truth
     if truth is None or len(res.t_ns) < 2:
         return []
@@ -185,6 +195,9 @@ def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_
     out = []
     for a, b in zip(edges[0::2], edges[1::2]):
         idx = sel[a:b]
+        fixes = ds.gnss.t_ns[(ds.gnss.t_ns >= truth.t_ns[idx[0]]) & (ds.gnss.t_ns <= truth.t_ns[idx[-1]])]
+        if fixes.size:
+            idx = idx[truth.t_ns[idx] >= fixes[-1]]
         if len(idx) < 2:
             continue
         ref = truth.llh[idx]

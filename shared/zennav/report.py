@@ -260,6 +260,14 @@ def accuracy_rows(metrics: dict) -> list[tuple[str, list[str]]]:
     if metrics.get("outages"):
         rows.append(("outage max drift RMS", [f(m.get("outage_max_horizontal_rms_m"), "m") for m in runs]))
         rows.append(("outage max drift max", [f(m.get("outage_max_horizontal_max_m"), "m") for m in runs]))
+    for i, d in enumerate(metrics.get("dives", [])):
+        vals = []
+        for m in runs:
+            dd = m.get("dives", [])
+            pct = "n/a" if i >= len(dd) or dd[i]["drift_pct"] is None else f"{dd[i]['drift_pct']:.3f} %"
+            vals.append(f"end {dd[i]['end_horizontal_m']:.2f} m, max {dd[i]['max_horizontal_m']:.2f} m, drift {pct}"
+                        if i < len(dd) else "n/a")
+        rows.append((f"under water {d['start_s']:.0f} s .. {d['end_s']:.0f} s, {d['distance_m']:.0f} m", vals))
     return rows
 
 

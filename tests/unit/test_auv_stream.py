@@ -189,7 +189,8 @@ def test_checkpoint_keeps_the_aid_counts(tmp_path, n):
 
 def test_dives_score_each_stretch_under_water():
     """zennav.metrics.dives: a truth under water between 30 and 50 s (5 m below the surface) and a solution that
-    drifts north at 0.1 m/s from 30 s: one dive, its path length, 2 m error at its end, drift = 2 m / distance."""
+    drifts north at 0.1 m/s from 30 s: one dive, its path length, 2 m error at its end, drift = 2 m / distance;
+    with GNSS fixes under water until 40 s (A-KIT's derived ones), the dive counts from the last, at 40 s."""
     from zennav.metrics import dives, ned_errors
     from zennav.nav import earth
     from zennav.replay import ReplayResult
@@ -197,6 +198,9 @@ def test_dives_score_each_stretch_under_water():
     ds = load_dataset("sim:car", duration_s=60.0)
     tr = ds.truth
     s = (tr.t_ns - ds.initial.t_ns) / 1e9
+    t_fix = (ds.gnss.t_ns - ds.initial.t_ns) / 1e9
+    gnss_until_40 = ds.gnss.slice(t_fix <= 40.0)
+    ds.gnss = ds.gnss.slice((t_fix < 30.0) | (t_fix > 50.0))
     ds.config = ds.config.with_(depth_surface_h_m=0.0)
     tr.llh[:, 2] = np.where((s >= 30.0) & (s < 50.0), -5.0, 0.0)
     north = np.clip(s - 30.0, 0.0, None) * 0.1
@@ -211,6 +215,31 @@ def test_dives_score_each_stretch_under_water():
     assert d["distance_m"] == pytest.approx(np.hypot(step[:, 0], step[:, 1]).sum()) and d["distance_m"] > 50.0
     assert d["end_horizontal_m"] == pytest.approx(2.0, abs=0.01) == d["max_horizontal_m"]
     assert d["drift_pct"] == pytest.approx(100.0 * d["end_horizontal_m"] / d["distance_m"])
+    ds.gnss = gnss_until_40
+    (d40,) = dives(ds, res)
+    assert d40["start_s"] == pytest.approx(40.0, abs=0.02) and d40["end_s"] == d["end_s"]
+    assert d40["distance_m"] == pytest.approx(d["distance_m"] / 2, rel=0.1) and d40["end_horizontal_m"] == d[
+        "end_horizontal_m"]
+
+
+def test_replay_metrics_of_an_auv_score_its_dives():
+    """`zennav replay sim:auv` (evaluate, format_table): metrics.json carries each dive's drift, the table a row per
+    dive, as the page of `zennav report`; a car (no DVL, no depth sensor) gets no dive entry, whatever its heights."""
+    from zennav.metrics import dives, evaluate, format_table
+    from zennav.report import accuracy_rows
+
+    ds = auv_like(40.0)
+    res = run_replay(ds)
+    m = evaluate(ds, res)
+    (d,) = m["dives"]
+    assert m["dives"] == dives(ds, res) and 20.0 < d["start_s"] < 30.0 and d["distance_m"] > 10.0
+    assert d["drift_pct"] == pytest.approx(100.0 * d["end_horizontal_m"] / d["distance_m"])
+    row = next(line for line in format_table(m).splitlines() if line.startswith("under water"))
+    assert f"end {d['end_horizontal_m']:.2f} m" in row and f"drift {d['drift_pct']:.3f} %" in row
+    (page_row,) = [vals for name, vals in accuracy_rows(m) if name.startswith("under water")]  # zennav report's
+    assert page_row == [row.split("  ", 1)[1].strip().rsplit(" of ", 1)[0]]
+    car = load_dataset("sim:car", duration_s=5.0)
+    assert "dives" not in evaluate(car, run_replay(car))
 
 
 def test_monitor_shows_the_dvl_and_depth_records_and_counters():

@@ -1,7 +1,10 @@
 """Find and load datasets by name: the recordings in the shared data folder, KF-GINS YAML files, the simulator."""
 from __future__ import annotations
 
+import inspect
 import os
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 from zennav.datasets.errors import DataError
@@ -61,28 +64,68 @@ def data_root() -> Path:
     raise DataError("data root", f"no data folder found (set ZENNAV_DATA); looked in {', '.join(map(str, candidates))}")
 
 
-def _load_folder(folder: Path, **options) -> Dataset:
-    """A dataset folder, recognized by its files (only the recognised loader is imported: start-up time)."""
+def _folder_loader(folder: Path) -> Callable[..., Dataset]:
+    """The loader of a dataset folder, recognized by its files (only that loader is imported: start-up time)."""
     if (folder / "global_pose").is_dir() and (folder / "processed_log").is_dir():
         from zennav.datasets import comma2k19
 
-        return comma2k19.load(folder, **options)
+        return partial(comma2k19.load, folder)
     if (folder / "GT.csv").is_file() and (folder / "IMU_1.csv.gz").is_file():
         from zennav.datasets import ansfl
 
-        return ansfl.load(folder, **options)
+        return partial(ansfl.load, folder)
     if any(folder.glob("imu_*.csv.tag")) and any(folder.glob("*.pos")):
         from zennav.datasets import rtklibexplorer
 
-        return rtklibexplorer.load(folder, **options)
+        return partial(rtklibexplorer.load, folder)
     configs = sorted(folder.glob("*.yaml")) + sorted(folder.glob("*.yml"))
     if len(configs) == 1:
         from zennav.datasets import kfgins
 
-        return kfgins.load_config(configs[0], **options)
+        return partial(kfgins.load_config, configs[0])
     raise DataError(folder, f"not a known dataset folder (comma2k19, rtklibexplorer, an ANSFL flight, or one "
                             f"KF-GINS YAML); "
                             f"found {len(configs)} YAML files")
+
+
+def _option_names(*fns, skip=()) -> list[str]:
+    """The keyword parameters of fns (partials: those not yet bound), minus skip: the loader options they take."""
+    names: set[str] = set()
+    for fn in fns:
+        params = inspect.signature(fn).parameters.values()
+        names |= {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    return sorted(names - set(skip))
+
+
+def _sim_loader(kind: str) -> tuple[Callable[..., Dataset], list[str]]:
+    """The simulator's dataset function of a scenario and the options it takes (its own and its trajectory's)."""
+    from zennav.sim import trajectory as tr
+
+    moving = {"car": tr.car_trajectory, "multirotor": tr.multirotor_trajectory, "auv": tr.auv_trajectory}
+    given = ("kind", "duration_s", "seed", "start_llh")  # make_trajectory's own arguments
+    traj = _option_names(moving[kind], skip=given) if kind in moving else ["euler", "yaw_rate"]  # StaticTrajectory
+    from zennav.sim.scenarios import make_dataset
+
+    if kind == "auv":
+        from zennav.sim.auv import make_auv_dataset
+
+        return make_auv_dataset, sorted(set(_option_names(make_auv_dataset, make_dataset, skip=("kind",)) + traj))
+    return partial(make_dataset, kind), sorted(set(_option_names(make_dataset, skip=("kind",)) + traj))
+
+
+def _call_loader(spec: str, load: Callable[..., Dataset], accepted: list[str], options: dict) -> Dataset:
+    """load(**options), a mistake in the options (an unknown name, a value of the wrong type or range) as one
+    DataError that names them."""
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        raise DataError(spec, f"unknown loader option {', '.join(unknown)}; accepted: {', '.join(accepted) or 'none'}")
+    try:
+        return load(**options)
+    except (TypeError, ValueError, ArithmeticError, IndexError) as e:
+        if not options:
+            raise
+        given = ", ".join(f"{k}={v!r}" for k, v in options.items())
+        raise DataError(spec, f"loader options {given} not usable: {e}") from None
 
 
 def parse_loader_options(items) -> dict:
@@ -104,45 +147,40 @@ def parse_loader_options(items) -> dict:
 
 
 def load_dataset(spec: str, defer_truth: bool = False, **options) -> Dataset:
-    """Load a dataset from ``spec``: one of ACCEPTED. ``options`` go to the loader (e.g. prefilter="none").
-    defer_truth: a KF-GINS configuration's truth file is left unread (kfgins.load_deferred_truth reads it)."""
-    if defer_truth and Path(spec).suffix.lower() in (".yaml", ".yml"):
-        from zennav.datasets import kfgins
-
-        return kfgins.load_config(spec, defer_truth=True, **options)
+    """Load a dataset from ``spec``: one of ACCEPTED. ``options`` go to the loader (e.g. prefilter="none"); a wrong
+    one is a DataError. defer_truth: a KF-GINS configuration's truth file is left unread (kfgins.load_deferred_truth
+    reads it)."""
+    load: Callable[..., Dataset]
     if spec in RECORDINGS:
-        return _load_folder(data_root() / RECORDINGS[spec], **options)
-    if spec.startswith("ansfl:"):
+        load = _folder_loader(data_root() / RECORDINGS[spec])
+    elif spec.startswith("ansfl:"):
         if spec not in ansfl_specs():
             raise DataError(spec, f"unknown ANSFL flight; accepted: {ANSFL_ACCEPTED}")
         from zennav.datasets import ansfl
 
-        return ansfl.load(data_root() / ANSFL_FOLDER / spec[6:], **options)
-    if spec.startswith("akit:"):
+        load = partial(ansfl.load, data_root() / ANSFL_FOLDER / spec[6:])
+    elif spec.startswith("akit:"):
         if spec not in akit_specs():
             raise DataError(spec, f"unknown A-KIT trajectory; accepted: {AKIT_ACCEPTED}")
         from zennav.datasets import akit
 
-        return akit.load(data_root() / AKIT_FOLDER / spec[5:], **options)
-    if spec.startswith("sim:"):
+        load = partial(akit.load, data_root() / AKIT_FOLDER / spec[5:])
+    elif spec.startswith("sim:"):
         kind = spec[4:]
         if kind not in SIM_KINDS:
             raise DataError(spec, f"unknown simulator scenario; accepted: {', '.join(SIM_KINDS)}")
-        if kind == "auv":
-            from zennav.sim.auv import make_auv_dataset
-
-            return make_auv_dataset(**options)
-        from zennav.sim.scenarios import make_dataset
-
-        return make_dataset(kind, **options)
-    path = Path(spec)
-    if path.suffix.lower() in (".yaml", ".yml"):
+        load, accepted = _sim_loader(kind)
+        return _call_loader(spec, load, accepted, options)
+    elif Path(spec).suffix.lower() in (".yaml", ".yml"):
         from zennav.datasets import kfgins
 
-        return kfgins.load_config(path, **options)
-    if path.is_dir():
-        return _load_folder(path, **options)
-    raise DataError(spec, f"unknown dataset; accepted: {ACCEPTED}")
+        load = partial(kfgins.load_config, Path(spec), defer_truth=defer_truth)
+        return _call_loader(spec, load, _option_names(load, skip=("defer_truth",)), options)
+    elif Path(spec).is_dir():
+        load = _folder_loader(Path(spec))
+    else:
+        raise DataError(spec, f"unknown dataset; accepted: {ACCEPTED}")
+    return _call_loader(spec, load, _option_names(load), options)
 
 
 def available() -> list[str]:
