@@ -66,6 +66,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.config = nav_config(ds.config, filter_settings(spec, params, profile, constraints))
     except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
+    for remark in ds.notes.get("remarks") or []:  # what a loader changed or left out (KF-GINS configurations)
+        click.echo(f"note: {remark}", err=True)
     kf_gins = ds.notes.get("format") == "KF-GINS"
     if out is None and kf_gins:  # as KF-GINS: into the configuration's outputpath
         out = Path(ds.notes["outputpath"])

@@ -321,3 +321,19 @@ def test_kfgins_repository_layout_runs_from_any_directory(tmp_path, monkeypatch)
     (dataset / "gnss.txt").unlink()
     with pytest.raises(DataError, match=r"gnsspath.*'./dataset/gnss.txt' not found"):
         kfgins.load_config(path)
+
+
+def test_duplicated_and_out_of_order_rows_are_left_out_and_remarked(tmp_path):
+    """A real file's duplicated or out-of-order record is left out with a remark the replay prints (strict callers
+    still get the line's error)."""
+    imu = good_imu(12)
+    imu = imu[:5] + [imu[4], imu[6], imu[5]] + imu[7:]  # row 5 twice, rows 6 and 7 swapped
+    gnss = [f"{SOW0 + s:.3f} 30.4447858 114.4718661 21.09 0.010 0.009 0.019" for s in (0.0, 0.02, 0.04)]
+    path = write_demo(tmp_path, imu_rows=imu, gnss_rows=gnss)
+    ds = kfgins.load_config(path)
+    t = ds.imu.t_ns
+    assert (np.diff(t) > 0).all() and len(t) == 11  # 12 rows and a duplicate, one of them and one swapped left out
+    remarks = "\n".join(ds.notes["remarks"])
+    assert "imu.txt: 2 rows left out" in remarks and "line 6" in remarks
+    with pytest.raises(DataError, match=r"imu\.txt:6: time .* is not after the previous"):
+        kfgins.load_imu(tmp_path / "imu.txt")

@@ -54,33 +54,46 @@ def _llh(lat_deg, lon_deg, h, table) -> np.ndarray:
 
 
 def _require_positive(table, values: np.ndarray, what: str) -> None:
+    """A DataError at the first row with a value <= 0 (the engine refuses such a fix: counter gnss_std)."""
     bad = np.flatnonzero((values <= 0.0).any(axis=1))
     if bad.size:
         raise table.error(int(bad[0]), f"{what} must be positive")
 
 
-def _timed_table(path, columns, time_col: int = 0):
-    """A finite table whose column ``time_col`` (sow [s]) strictly increases; returns (table, t_ns)."""
+def _timed_table(path, columns, time_col: int = 0, remarks: list[str] | None = None):
+    """A finite table whose column ``time_col`` (sow [s]) increases; returns (table, t_ns, keep). Without remarks a
+    time not after the previous row's is a DataError; with remarks such rows (a duplicated or out-of-order record)
+    are left out of keep (bool (N,): the rows to use), and a remark counts them."""
     table = read_table(path, columns, commas_as_space=True)
     table.require_finite()
     t_ns = _t_ns(table.data[:, time_col])
-    table.require_increasing(t_ns)
-    return table, t_ns
+    if remarks is None:
+        table.require_increasing(t_ns)
+        return table, t_ns, np.ones(len(t_ns), dtype=bool)
+    keep = np.ones(len(t_ns), dtype=bool)
+    keep[1:] = t_ns[1:] > np.maximum.accumulate(t_ns)[:-1]
+    dropped = np.flatnonzero(~keep)
+    if dropped.size:
+        remarks.append(f"{Path(path).name}: {dropped.size} rows left out, their time not after an earlier row's "
+                       f"(a duplicated or out-of-order record; first: line {table.line_of(int(dropped[0]))})")
+    return table, t_ns, keep
 
 
-def load_imu(path, columns: int = 7) -> ImuData:
-    """KF-GINS IMU file (``columns`` = imudatalen) -> ImuData (t_ns in seconds of week, FRD increments)."""
-    table, t_ns = _timed_table(path, columns)
-    d = table.data
-    return ImuData(t_ns, d[:, 1:4].copy(), d[:, 4:7].copy())
+def load_imu(path, columns: int = 7, remarks: list[str] | None = None) -> ImuData:
+    """KF-GINS IMU file (``columns`` = imudatalen) -> ImuData (t_ns in seconds of week, FRD increments). remarks:
+    leave duplicated and out-of-order rows out and say so there (else they are a DataError)."""
+    table, t_ns, keep = _timed_table(path, columns, remarks=remarks)
+    d = table.data[keep]
+    return ImuData(t_ns[keep], d[:, 1:4].copy(), d[:, 4:7].copy())
 
 
-def load_gnss(path, vel_path=None, fix: FixType = FixType.SINGLE) -> GnssData:
+def load_gnss(path, vel_path=None, fix: FixType = FixType.SINGLE, remarks: list[str] | None = None) -> GnssData:
     """KF-GINS GNSS file (7 or 13 columns), optionally merged with a zennav velocity file -> GnssData.
 
-    Every epoch gets ``fix`` (the format does not carry it) and num_sats -1 (unknown).
+    Every epoch gets ``fix`` (the format does not carry it) and num_sats -1 (unknown). remarks: leave duplicated and
+    out-of-order epochs out and say so there (else they are a DataError).
     """
-    table, t_ns = _timed_table(path, (7, 13))
+    table, t_ns, keep = _timed_table(path, (7, 13), remarks=remarks)
     d = table.data
     llh = _llh(d[:, 1], d[:, 2], d[:, 3], table)
     v_n = std_v_n = None
@@ -94,14 +107,18 @@ def load_gnss(path, vel_path=None, fix: FixType = FixType.SINGLE) -> GnssData:
         if v_n is not None:
             raise DataError(vel_path, f"velocity given twice: {Path(path).name} already has 13 columns")
         v_n, std_v_n = _load_velocity(vel_path, t_ns)
-    m = len(t_ns)
-    return GnssData(t_ns, llh, std_ned, v_n, std_v_n, np.full(m, int(fix), dtype=np.int64),
+    m = int(keep.sum())
+    return GnssData(t_ns[keep], llh[keep], std_ned[keep], None if v_n is None else v_n[keep],
+                    None if std_v_n is None else std_v_n[keep], np.full(m, int(fix), dtype=np.int64),
                     np.full(m, -1, dtype=np.int64))
 
 
 def _load_velocity(path, gnss_t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """zennav GNSS velocity file -> (v_n, std_v_n) [m/s]; its times must equal the GNSS file's, row by row."""
-    table, t_ns = _timed_table(path, 7)
+    """zennav GNSS velocity file -> (v_n, std_v_n) [m/s]; its times must equal the GNSS file's, row by row (all rows:
+    load_gnss leaves the same ones out of both)."""
+    table = read_table(path, 7, commas_as_space=True)
+    table.require_finite()
+    t_ns = _t_ns(table.data[:, 0])
     n = min(len(t_ns), len(gnss_t_ns))
     bad = np.flatnonzero(t_ns[:n] != gnss_t_ns[:n])
     if bad.size:
@@ -118,7 +135,7 @@ def load_nav(path, source: str = "", fields=TRUTH_FIELDS, at_antenna: bool = Fal
 
     fields: which of "pos", "vel", "att" hold data; the others are left None (a zennav extension).
     """
-    table, t_ns = _timed_table(path, 11, time_col=1)
+    table, t_ns, _ = _timed_table(path, 11, time_col=1)
     d = table.data
     euler = np.deg2rad(d[:, 8:11])
     euler[:, 2] = wrap_angle(euler[:, 2])
@@ -456,8 +473,8 @@ def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
     imu_path, gnss_path = cfg.file("imupath"), cfg.file("gnsspath")
     vel_path, truth_path = cfg.file("gnssvelpath", required=False), cfg.file("truthpath", required=False)
 
-    imu = load_imu(imu_path, int(columns))
-    gnss = load_gnss(gnss_path, vel_path)
+    imu = load_imu(imu_path, int(columns), remarks=cfg.notes)
+    gnss = load_gnss(gnss_path, vel_path, remarks=cfg.notes)
     end_ns = int(imu.t_ns[-1]) if endtime < 0 else int(_t_ns(endtime))
     if start_ns < imu.t_ns[0]:
         raise cfg.error(("starttime",), f"{start_ns / NS:.9f} s is before the first IMU time {imu.t_ns[0] / NS:.9f} s")
