@@ -68,6 +68,10 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         raise click.ClickException(str(e)) from None
     for remark in ds.notes.get("remarks") or []:  # what a loader changed or left out (KF-GINS configurations)
         click.echo(f"note: {remark}", err=True)
+    run_s = (int(ds.imu.t_ns[-1]) - int(ds.imu.t_ns[0])) / 1e9  # outage times count from the first IMU sample
+    for start, duration in outages:
+        if start >= run_s:
+            click.echo(f"note: outage {start:g}:{duration:g} starts after the run's {run_s:.1f} s: none", err=True)
     kf_gins = ds.notes.get("format") == "KF-GINS"
     if out is None and kf_gins:  # as KF-GINS: into the configuration's outputpath
         out = Path(ds.notes["outputpath"])

@@ -65,6 +65,14 @@ def test_kf_gins_configuration_without_out_writes_into_its_outputpath(tmp_path, 
     assert (elsewhere / "results" / "KF_GINS_Navresult.nav").is_file()
 
 
+def test_an_outage_after_the_end_of_the_run_is_said_not_dropped_silently():
+    res = CliRunner().invoke(main, ["replay", "sim:static", "-o", "duration_s=5", "--outage", "100:10", "--outage",
+                                    "2:1", "-q"])
+    assert res.exit_code == 0, res.output
+    assert "note: outage 100:10 starts after the run's 5.0 s: none" in res.output
+    assert "outage 2s+1s" in res.output and "100s" not in res.output
+
+
 def test_user_mistakes_give_one_line_errors(tmp_path):
     runner = CliRunner()
     cfg = kfgins.write_dataset(make_dataset("static", duration_s=5.0, imu_rate_hz=100.0), tmp_path, name="s")
