@@ -112,6 +112,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     learned = compensation != "none"
     metrics["compensation"] = {"model": compensation, "target": target if learned else None,
                                "seed": seed if learned else None}
+    if compensator is not None:
+        metrics["compensation"]["counters"] = compensator.status()
     if res.smoothed is not None:
         metrics["smoothed"] = evaluate(ds, res.smoothed)
         metrics["smoothed"].pop("engine")
@@ -126,6 +128,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
     if res.smoothed is not None and not as_json:
         click.echo("smoothed (forward-backward):\n" + format_table(metrics["smoothed"]))
+    if compensator is not None and not as_json:
+        click.echo(_learning_summary(metrics["compensation"], res.status["counters"]))
     if not as_json and (heading_unknown or adaptive_r is not None):
         click.echo(_alignment_summary(res.status, int(ds.initial.t_ns)))
     if out is not None and not as_json:
@@ -136,6 +140,20 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     if mcap is not None and not as_json:
         click.echo(f"wrote {mcap} (opens in Foxglove: map, 3-D pose, every message)")
     return metrics
+
+
+def _learning_summary(compensation: dict, engine_counters: dict) -> str:
+    """One line on what the learning loop did: training samples, sets made, queries and their fate; says so when no
+    model was made (the run then equals the plain one)."""
+    target, trainer = compensation["target"], compensation["counters"]["trainer"]
+    received, version = trainer.get(f"received_{target}", 0), trainer.get(f"version_{target}", 0)
+    predictor = compensation["counters"]["predictor"]
+    fused = sum(n for k, n in engine_counters.items() if k.startswith("learned_") and k.endswith("_fused"))
+    answers = ", ".join(f"{k} {n}" for k, n in sorted(predictor.items())) or "none"
+    made = f"{version} model sets" if version else \
+        f"no model made (it needs {trainer.get(f'min_samples_{target}', '?')} samples): the run equals a plain one"
+    return (f"learning ({compensation['model']}, {target}): {received} training samples, {made}; "
+            f"queries {compensation['counters']['link']['queries']} ({answers}); answers fused {fused}")
 
 
 def filter_settings(spec: str, params: Path | None, profile: str | None, constraints: list[str] | None) -> dict:

@@ -73,6 +73,15 @@ def test_an_outage_after_the_end_of_the_run_is_said_not_dropped_silently():
     assert "outage 2s+1s" in res.output and "100s" not in res.output
 
 
+def test_a_learned_replay_says_what_the_learning_did():
+    """Too little GNSS time to learn: the replay says no model was made, not a silent plain run."""
+    res = CliRunner().invoke(main, ["replay", "sim:car", "-o", "duration_s=60", "--outage", "40:10",
+                                    "--compensation", "elman", "-q"])
+    assert res.exit_code == 0, res.output
+    assert "learning (elman, body_velocity): " in res.output
+    assert "no model made (it needs 200 samples): the run equals a plain one" in res.output
+
+
 def test_user_mistakes_give_one_line_errors(tmp_path):
     runner = CliRunner()
     cfg = kfgins.write_dataset(make_dataset("static", duration_s=5.0, imu_rate_hz=100.0), tmp_path, name="s")
