@@ -8,7 +8,8 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
 - "body_velocity": the velocity in the body frame [m/s, FRD] (zennav.nav.aiding.body_velocity_model); with the
   non-holonomic constraint on and NavConfig.learn_forward_only, its forward output alone (a learned odometer: the
   constraint already gives the lateral and vertical velocity, and fusing the learned ones as well would count that
-  information twice). On the rtklibexplorer drive it does not help: the NHC+ZUPT drift is mostly along-track (a
+  information twice). On the rtklibexplorer drive (these figures with the constraint's noise taken as white,
+  nhc_corr_s 0) it does not help: the NHC+ZUPT drift is mostly along-track (a
   forward-speed error of at most about 1.2-1.7 m/s RMS over a window), while the learned forward speed is off by
   2.5-5 m/s RMS on the held-out windows (benchmarks/constraints.py --forward-only). With
   NavConfig.learn_where_better, an output is fused only where the answer's 1-sigma is below the filter's own 1-sigma
@@ -22,7 +23,7 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
   Two rules for its error model (each a NavConfig switch):
   * held error (learn_held_fraction f > 0): the answer's error is e = b + w, b a bias held through the outage and w
     white, with variances f std^2 and (1 - f) std^2 of the answered 1-sigma std. b is an augmented random-constant
-    state per output (Navigator.add_states "learned_bias"; the consider/augmented treatment of coloured
+    state per output (Navigator.add_states "learned_bias"; the augmented-state treatment of coloured
     measurement noise, Bryson and Henrikson, J. Spacecraft and Rockets 5(6), 1968; Gelb, "Applied Optimal
     Estimation", 1974), restarted (0, 1-sigma sqrt(f) std, uncorrelated) at the first answer after a fused GNSS
     fix: a model's error in one outage says nothing of the next. The answers of one outage then cannot shrink the
