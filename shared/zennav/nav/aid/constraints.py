@@ -7,7 +7,7 @@ v_v[1:3] = 0, with noise of 1-sigma nhc_std_mps covering sideslip, suspension mo
 et al., IEEE TRA 17(5) 2001). That noise is not white: a car dives on its suspension for as long as it brakes and
 slips for as long as it turns. Fused every nhc_every_s as if independent, a violation held over many updates is
 taken at its full size (on the rtklibexplorer drive, GNSS withheld 390-420 s, a hard braking into a 1 s stop took
-the INS forward speed 2.3 m/s below the truth through the constraint's attitude updates, where the free INS stayed
+the INS forward speed 2.3 m/s below the truth through the constraint's updates, where the free INS stayed
 within 0.05 m/s). The violation is therefore taken as first-order Gauss-Markov with correlation time nhc_corr_s and
 each update's variance inflated by the AR(1) factor (base.correlated_variance), so that the updates within a
 correlation time weigh about as much as one independent one: the simplest of the treatments of coloured
