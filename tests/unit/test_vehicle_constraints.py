@@ -279,8 +279,8 @@ def test_learned_where_better_fuses_only_the_outputs_the_model_knows_better(car)
 def test_learned_held_error_does_not_shrink_with_the_number_of_answers(car):
     """Answers that share one offset (a model's bias held through the outage): taken as white, ten of them pull
     the forward body velocity most of the way to the offset; with learn_held_fraction 0.9 the bias state takes a
-    part of the offset, the velocity moves about half as far and its variance stays several times larger. A fused GNSS fix restarts the held-error states (value 0, uncorrelated, 1-sigma
-    sqrt(0.9) std)."""
+    part of the offset, the velocity moves about half as far and its variance stays several times larger. A fused
+    GNSS fix restarts the held-error states at the next answer (value 0, uncorrelated, 1-sigma sqrt(0.9) std)."""
     from zennav.nav.learning import LearnQuery
 
     moved, var = {}, {}
