@@ -7,7 +7,9 @@ of that RMS against pure INS, and the RMS of the along-track and cross-track par
 (against the true course: the forward-speed and heading parts of the drift). Rows: pure INS; NHC; NHC+ZUPT;
 NHC+ZUPT with learned compensation (anfis, elman; each for --seeds, and their median; with --forward-only the
 learned body velocity gives the forward speed alone, NavConfig.learn_forward_only; with --where-better an output
-is fused only where its 1-sigma is below the filter's, NavConfig.learn_where_better). Under each learned run, its
+is fused only where its 1-sigma is below the filter's, NavConfig.learn_where_better; --held-fraction F: that part of
+each answer's variance is a bias held through the outage, NavConfig.learn_held_fraction; --nhc-floor: the lateral
+and vertical 1-sigma at least the constraint's, NavConfig.learn_nhc_floor). Under each learned run, its
 answers against the truth: the RMS error of the answered body velocity (forward, right, down) [m/s] against the
 true velocity in the solution's body frame at the query time, and the mean of (error / answered 1-sigma)^2 per
 output (about 1 for an honest 1-sigma, above 1: the filter weighs the answer too much). --per-window: each row's
@@ -18,7 +20,8 @@ sim:car (600 s, MEMS, its odometer 2 % fast with 0.05 m/s noise): the same windo
 odometer (scale-factor state estimated), and the scale factor's final estimate.
 
     .venv/bin/python benchmarks/constraints.py [--windows 10,30,60] [--seeds 0,1,2] [--jobs 2] [--no-learned]
-        [--datasets rtklibexplorer,sim:car] [--forward-only] [--where-better] [--per-window]
+        [--datasets rtklibexplorer,sim:car] [--forward-only] [--where-better] [--held-fraction F] [--nhc-floor]
+        [--per-window]
 """
 from __future__ import annotations
 
@@ -37,7 +40,7 @@ LEARNED = ("anfis", "elman")
 
 def run(job: tuple) -> tuple:
     """One product run: (spec, window length, constraint names, compensation, seed, learned options
-    (NavConfig field names set true)) -> (job,
+    ((NavConfig field name, value) pairs)) -> (job,
     per-window maxima, along/cross parts, odometer scale (estimate, 1-sigma, truth) or None, the learned answers'
     accuracy (answer_errors) or None, wall s)."""
     import torch
@@ -55,7 +58,7 @@ def run(job: tuple) -> tuple:
     wall = time.perf_counter()
     ds = load_dataset(spec)
     ds.config = nav_config(ds.config, filter_settings(spec, None, None, list(constraints))).with_(
-        **dict.fromkeys(options, True))
+        **dict(options))
     compensator = make_compensator(compensation, "body_velocity", seed)
     config = ds.config.with_(learning=True) if compensator is not None else ds.config
     logged = None if compensator is None else AnswerLog(compensator)
@@ -157,13 +160,19 @@ def main() -> None:
     ap.add_argument("--where-better", action="store_true",
                     help="learned rows fuse an output only where its 1-sigma is below the filter's"
                          " (learn_where_better)")
+    ap.add_argument("--held-fraction", type=float, default=0.0,
+                    help="learned rows: this part of each answer's variance is a bias held through the outage"
+                         " (learn_held_fraction)")
+    ap.add_argument("--nhc-floor", action="store_true",
+                    help="learned rows: lateral and vertical 1-sigma at least the constraint's (learn_nhc_floor)")
     ap.add_argument("--per-window", action="store_true", help="print each row's per-window maxima")
     args = ap.parse_args()
     lengths = [float(x) for x in args.windows.split(",")]
     seeds = [int(x) for x in args.seeds.split(",")]
     specs = args.datasets.split(",")
-    options = (("learn_forward_only",) if args.forward_only else ()) + (
-        ("learn_where_better",) if args.where_better else ())
+    options = tuple((name, value) for name, value in (
+        ("learn_forward_only", args.forward_only), ("learn_where_better", args.where_better),
+        ("learn_held_fraction", args.held_fraction), ("learn_nhc_floor", args.nhc_floor)) if value)
     jobs: list[tuple] = []
     for length in lengths:
         if "rtklibexplorer" in specs:
@@ -179,7 +188,8 @@ def main() -> None:
     print(f"GNSS withheld for L s every {PERIOD_S:g} s from {FIRST_S:g} s; per-window maximum horizontal drift [m]; "
           "along / cross: RMS of the along- and cross-track parts of each window's peak error [m]\neach row is the "
           f"product run  zennav replay DATASET --outage-every {PERIOD_S:g}:L:{FIRST_S:g} --constraints LIST "
-          "[--compensation MODEL --seed S]" + "".join(f" with {o}: true in --params FILE" for o in options))
+          "[--compensation MODEL --seed S]" + "".join(f" with {o}: {str(v).lower()} in --params FILE"
+                                                    for o, v in options))
     for spec, rows in (("rtklibexplorer", ROWS), ("sim:car", SIM_ROWS)):
         if spec not in specs:
             continue

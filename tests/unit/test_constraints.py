@@ -36,4 +36,24 @@ def test_nhc_is_off_by_default_and_takes_its_settings(car):
     assert "nhc" not in Navigator(car.config, car.initial).sources
     nav = Navigator(car.config.with_(nhc=True), car.initial)
     assert nav.sources["nhc"].every_ns == int(car.config.nhc_every_s * 1e9)
-    np.testing.assert_array_equal(nav.sources["nhc"].R, np.diag([0.1**2, 0.1**2]))
+    rho = np.exp(-0.1 / 0.5)  # nhc_every_s over nhc_corr_s: the AR(1) inflation of the violation's variance
+    np.testing.assert_allclose(nav.sources["nhc"].R, np.diag([0.1**2, 0.1**2]) * (1 + rho) / (1 - rho), rtol=1e-12)
+    white = Navigator(car.config.with_(nhc=True, nhc_corr_s=0.0), car.initial)
+    np.testing.assert_array_equal(white.sources["nhc"].R, np.diag([0.1**2, 0.1**2]))
+
+
+def test_ar1_factor_gives_the_variance_of_a_mean_of_correlated_errors():
+    """n samples of a first-order Gauss-Markov error every dt: the variance of their mean is about
+    correlated_variance(std, dt, tau) / n (the variance a filter taking them as independent must give each)."""
+    from zennav.nav.aid.base import correlated_variance
+
+    rng = np.random.default_rng(0)
+    std, dt, tau, n, trials = 0.1, 0.1, 0.5, 200, 4000
+    rho = np.exp(-dt / tau)
+    e = np.empty((trials, n))
+    e[:, 0] = rng.normal(0.0, std, trials)
+    for k in range(1, n):
+        e[:, k] = rho * e[:, k - 1] + rng.normal(0.0, std * np.sqrt(1 - rho**2), trials)
+    ratio = np.var(e.mean(axis=1)) / (correlated_variance(std, dt, tau) / n)
+    assert 0.85 < ratio < 1.1, ratio
+    assert correlated_variance(std, dt, 0.0) == std**2

@@ -274,3 +274,59 @@ def test_learned_where_better_fuses_only_the_outputs_the_model_knows_better(car)
     dv_b = nav.state.C_nb.T @ nav.state.v_n - v_b0
     assert dv_b[0] > 0.5 * sigma
     np.testing.assert_allclose(dv_b[1:], 0.0, atol=0.05 * sigma)  # through P's correlations only
+
+
+def test_learned_held_error_does_not_shrink_with_the_number_of_answers(car):
+    """Answers that share one offset (a model's bias held through the outage): taken as white, ten of them pull
+    the forward body velocity most of the way to the offset; with learn_held_fraction 0.9 the bias state takes a
+    part of the offset, the velocity moves about half as far and its variance stays several times larger. A fused
+    GNSS fix restarts the held-error states at the next answer (value 0, uncorrelated, 1-sigma sqrt(0.9) std)."""
+    from zennav.nav.learning import LearnQuery
+
+    moved, var = {}, {}
+    for held in (0.0, 0.9):
+        nav = Navigator(car.config.with_(learning=True, learn_held_fraction=held), car.initial)
+        v_b0 = nav.state.C_nb.T @ nav.state.v_n
+        sigma = float(nav.std_v_n.max())  # each answer as sure as the filter
+        query = LearnQuery(nav.t_ns, "body_velocity", np.zeros(12), 1.0)
+        for _ in range(10):
+            assert nav.on_correction(query, v_b0 + np.array([sigma, 0.0, 0.0]), np.full(3, sigma))
+        moved[held] = float((nav.state.C_nb.T @ nav.state.v_n - v_b0)[0])
+        C_bn = nav.state.C_nb.T
+        var[held] = float(C_bn[0] @ nav.kf.P[VEL, VEL] @ C_bn[0])
+    assert moved[0.0] > 0.8 * sigma and 0.0 < moved[0.9] < 0.65 * moved[0.0], moved
+    assert var[0.9] > 3.0 * var[0.0], var
+    sl = nav.aug_blocks["learned_bias"]
+    assert nav.aug_value(sl)[0] > 0.3 * sigma  # the bias state took the offset
+    g = int(np.searchsorted(car.gnss.t_ns, nav.t_ns, side="right"))  # the first fix after the start
+    k = 1
+    while nav.t_ns < car.gnss.t_ns[g]:
+        nav.on_imu(int(car.imu.t_ns[k]), car.imu.dtheta[k], car.imu.dvel[k])
+        k += 1
+    nav.on_gnss(car.gnss.fix_at(g))  # fused at once (not newer than the engine)
+    assert nav.last_fused_t_ns == int(car.gnss.t_ns[g]) and nav.aug_value(sl)[0] != 0.0
+    query = LearnQuery(nav.t_ns, "body_velocity", np.zeros(12), 1.0)
+    v_b = nav.state.C_nb.T @ nav.state.v_n
+    P_before = nav.kf.P.copy()
+    assert nav.on_correction(query, v_b, np.full(3, sigma))  # no offset: the restart is all that moves the bias
+    np.testing.assert_allclose(nav.aug_value(sl), 0.0, atol=1e-9 * sigma)
+    assert nav.kf.P[sl, sl][0, 0] < 0.9 * sigma**2 < P_before[sl, sl][0, 0] + 0.9 * sigma**2
+
+
+def test_learned_lateral_sigma_is_floored_at_the_nhc_under_the_constraint(car):
+    """With the NHC and learn_nhc_floor, a learned lateral answer claiming a 1-sigma far below the constraint's
+    is fused with the constraint's (correlated_variance of nhc_std_mps over one answer period): it moves the
+    lateral body velocity as an answer of that 1-sigma does without the floor."""
+    from zennav.nav.aid.base import correlated_variance
+    from zennav.nav.learning import BODY_EVERY_S, LearnQuery
+
+    floor = math.sqrt(correlated_variance(car.config.nhc_std_mps, BODY_EVERY_S, car.config.nhc_corr_s))
+    lateral = {}
+    for nhc_floor, claimed in ((True, 0.01 * floor), (False, floor)):
+        nav = Navigator(car.config.with_(nhc=True, learning=True, learn_nhc_floor=nhc_floor), car.initial)
+        v_b0 = nav.state.C_nb.T @ nav.state.v_n
+        query = LearnQuery(nav.t_ns, "body_velocity", np.zeros(12), 1.0)
+        assert nav.on_correction(query, v_b0 + np.array([0.0, 0.5, 0.0]), np.array([1.0, claimed, claimed]))
+        lateral[nhc_floor] = float((nav.state.C_nb.T @ nav.state.v_n - v_b0)[1])
+    assert 0.0 < lateral[True] < 0.5
+    np.testing.assert_allclose(lateral[True], lateral[False], rtol=1e-9)

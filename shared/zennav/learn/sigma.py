@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..nav.aid.base import ar1_variance_factor
+
 RHO_MAX = 0.95  # at most a factor sqrt(39) ~ 6.2 on the RMS
 
 
@@ -38,4 +40,4 @@ def answer_sigma(residuals: np.ndarray, lag: int = 1, floor: float = 1e-6) -> tu
         ok = den > 0
         rho[ok] = np.sum(c[lag:] * c[:-lag], axis=0)[ok] / den[ok]
     rho = np.clip(rho, 0.0, RHO_MAX)
-    return np.maximum(rms * np.sqrt((1.0 + rho) / (1.0 - rho)), floor), rho
+    return np.maximum(rms * np.sqrt(ar1_variance_factor(rho)), floor), rho

@@ -320,6 +320,18 @@ class Navigator:
         self.aug_blocks[name] = sl
         return sl
 
+    def reset_states(self, sl: slice, std) -> None:
+        """Restart augmented states (sl as returned by add_states): value 0, 1-sigma std, uncorrelated with every
+        other state (a new draw of a random constant, e.g. a learned model's error in a new outage)."""
+        P = self.kf.P.copy()
+        P[sl, :] = 0.0
+        P[:, sl] = 0.0
+        P[sl, sl] = np.diag(np.square(np.asarray(std, dtype=float)))
+        self.kf.P = P
+        self._aug_x[sl.start - N_STATES:sl.stop - N_STATES] = 0.0
+        if self.recorder is not None:
+            self.recorder.on_inflate(self.t_ns, self.kf.P)
+
     def aug_value(self, sl: slice) -> np.ndarray:
         """The current values of augmented states (a view; read only), sl as returned by add_states."""
         return self._aug_x[sl.start - N_STATES:sl.stop - N_STATES]

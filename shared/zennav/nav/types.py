@@ -299,6 +299,9 @@ class NavConfig:
     learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
     learn_forward_only: bool = False  # with nhc: fuse only the forward output of the learned body velocity
     learn_where_better: bool = False  # fuse a learned body-velocity output only where its 1-sigma is below the filter's
+    learn_held_fraction: float = 0.0  # part of a learned body-velocity answer's variance that is a bias held through
+    # the outage (a random-constant state per output, restarted at each outage's first answer); the rest is white
+    learn_nhc_floor: bool = False  # with nhc: floor the learned lateral and vertical 1-sigma at the constraint's own
     # learned DVL beam errors (zennav.nav.dvl_anomaly): hold time [s] of a sample waiting for its answers; the
     # anomaly rule: k-sigma of the VB R, chi-square probability of lambda, persistence window and count [samples]
     dvl_learned: bool = False  # the tight DVL learns and compensates its beam errors (with learning; the service's)
@@ -310,6 +313,7 @@ class NavConfig:
     nhc: bool = False  # non-holonomic constraint of a land vehicle (zennav.nav.aid.constraints)
     nhc_std_mps: float = 0.1  # 1-sigma of the constrained lateral and vertical body velocity [m/s]
     nhc_every_s: float = 0.1  # period of the constraint's updates [s of data time]
+    nhc_corr_s: float = 0.5  # correlation time of the violations (sideslip, suspension pitch) [s]; 0: white
     # the vehicle frame v (forward-right-down of the car body) for the constraints and the odometer
     # (zennav.nav.aid.vehicle): configured, not estimated
     vehicle_mount_euler: tuple = (0.0, 0.0, 0.0)  # roll, pitch, yaw of v in the IMU body frame [rad]: C_bv

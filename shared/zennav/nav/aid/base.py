@@ -11,6 +11,7 @@ time calls ``nav.propagate_covariance()`` before it builds its measurement, and 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +19,23 @@ import numpy as np
 from ..adaptive_r import AdaptiveR
 from ..consistency import ConsistencyMonitor
 from ..vbkf import VariationalR
+
+
+def ar1_variance_factor(rho):
+    """(1 + rho) / (1 - rho) for a lag-one correlation rho in [0, 1) (array or float): the factor on the variance of
+    one of a stream of AR(1) errors that makes the filter, which takes them as independent, weigh n of them as it
+    should (the variance of their mean is that factor over n times theirs: effective sample size n (1 - rho) /
+    (1 + rho); Bartlett 1946, von Storch and Zwiers, "Statistical Analysis in Climate Research", 1999, sec. 17.1)."""
+    return (1.0 + rho) / (1.0 - rho)
+
+
+def correlated_variance(std: float, every_s: float, corr_s: float) -> float:
+    """The variance [unit^2] to fuse, every every_s [s], one sample of an error of 1-sigma std [unit] that is a
+    first-order Gauss-Markov process of correlation time corr_s [s] (0: white): std^2 ar1_variance_factor(rho),
+    rho = exp(-every_s / corr_s)."""
+    if corr_s <= 0.0:
+        return std * std
+    return std * std * ar1_variance_factor(math.exp(-every_s / corr_s))
 
 
 @dataclass

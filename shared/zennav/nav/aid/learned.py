@@ -8,7 +8,8 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
 - "body_velocity": the velocity in the body frame [m/s, FRD] (zennav.nav.aiding.body_velocity_model); with the
   non-holonomic constraint on and NavConfig.learn_forward_only, its forward output alone (a learned odometer: the
   constraint already gives the lateral and vertical velocity, and fusing the learned ones as well would count that
-  information twice). On the rtklibexplorer drive it does not help: the NHC+ZUPT drift is mostly along-track (a
+  information twice). On the rtklibexplorer drive (these figures with the constraint's noise taken as white,
+  nhc_corr_s 0) it does not help: the NHC+ZUPT drift is mostly along-track (a
   forward-speed error of at most about 1.2-1.7 m/s RMS over a window), while the learned forward speed is off by
   2.5-5 m/s RMS on the held-out windows (benchmarks/constraints.py --forward-only). With
   NavConfig.learn_where_better, an output is fused only where the answer's 1-sigma is below the filter's own 1-sigma
@@ -19,6 +20,25 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
   an answer with no such output is counted learned_body_velocity_weak. Measured there (seed 0, benchmarks/
   constraints.py --where-better): the learned rows equal NHC+ZUPT within 0.1 m at 10, 30 and 60 s windows: no
   longer worse at 30 and 60 s, and the gain of the plain fusion at 10 s is gone.
+  Two rules for its error model (each a NavConfig switch):
+  * held error (learn_held_fraction f > 0): the answer's error is e = b + w, b a bias held through the outage and w
+    white, with variances f std^2 and (1 - f) std^2 of the answered 1-sigma std. b is an augmented random-constant
+    state per output (Navigator.add_states "learned_bias"; the augmented-state treatment of coloured
+    measurement noise, Bryson and Henrikson, J. Spacecraft and Rockets 5(6), 1968; Gelb, "Applied Optimal
+    Estimation", 1974), restarted (0, 1-sigma sqrt(f) std, uncorrelated) at the first answer after a fused GNSS
+    fix: a model's error in one outage says nothing of the next. The answers of one outage then cannot shrink the
+    error below the held part however many there are (N independent answers would shrink it by sqrt(N)), and the
+    first answers, while the INS velocity is still good, estimate b.
+  * under the non-holonomic constraint (learn_nhc_floor): the lateral and vertical outputs answer the quantity the
+    constraint fixes at zero; their 1-sigma is floored at the constraint's own, for one update per answer period
+    (zennav.nav.aid.base.correlated_variance of nhc_std_mps over BODY_EVERY_S with nhc_corr_s), so that a model
+    that claims to know the sideslip better than the constraint does not override it (its lateral output was
+    seen overconfident, (error / sigma)^2 of 2.4-27 on the rtklibexplorer drive).
+  Measured there with both (f 0.5) on NHC + ZUPT with the constraint's correlated noise (benchmarks/constraints.py
+  --held-fraction 0.5 --nhc-floor; RMS of the per-window maximum drift, median of seeds 0-2): 30 s windows,
+  ANFIS 9.42 m and Elman 7.87 m against 7.14 m without learning; 60 s, 24.05 and 26.59 m against 25.96 m. ANFIS
+  seed 0 at 30 s: 10.26 m without the two rules, 7.53 m with them. The learned forward speed stays 3.3-6.2 m/s RMS
+  off (its answers against the truth); neither rule makes the learned rows lower at 30 s, so both stay off.
 
 An answer is fused only if no GNSS position fix was fused after its query's time (else learned_stale: the filter
 already knows better) and the query is at most NavConfig.learn_answer_max_age_s of data time old (else
@@ -27,13 +47,15 @@ reported.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..aiding import body_velocity_model
 from ..eskf import N_STATES, POS
-from ..learning import OUTPUTS, LearnQuery
+from ..learning import BODY_EVERY_S, OUTPUTS, LearnQuery
 from ..types import NS, NavConfig
-from .base import AidSource, Measurement
+from .base import AidSource, Measurement, correlated_variance
 
 
 class LearnedSource(AidSource):
@@ -48,6 +70,17 @@ class LearnedSource(AidSource):
         # rows of the body-velocity answer that are fused (FRD)
         self.body_rows = [0] if config.nhc and config.learn_forward_only else [0, 1, 2]
         self.where_better = config.learn_where_better
+        body = target == "body_velocity"
+        self.held = config.learn_held_fraction if body else 0.0
+        self.bias: slice | None = None  # the held-error states (attach), FRD
+        self.bias_fix_ns = -1  # the last fused GNSS fix time when the held-error states were restarted
+        # floor of the lateral and vertical 1-sigma [m/s] under the non-holonomic constraint (0: none)
+        self.nhc_floor = (math.sqrt(correlated_variance(config.nhc_std_mps, BODY_EVERY_S, config.nhc_corr_s))
+                          if body and config.nhc and config.learn_nhc_floor else 0.0)
+
+    def attach(self, nav) -> None:
+        if self.held > 0.0:
+            self.bias = nav.add_states("learned_bias", np.zeros(3), np.zeros(3), math.inf)
 
     def on_input(self, nav, answer: tuple[LearnQuery, object, object]) -> bool:
         """answer: (query, value, std) with value and its 1-sigma std in the units of the target."""
@@ -67,15 +100,7 @@ class LearnedSource(AidSource):
             return False
         nav.propagate_covariance()
         if self.target == "body_velocity":
-            z, H = body_velocity_model(nav.state, value)
-            rows = self.body_rows
-            if self.where_better:
-                P = nav.kf.P[:N_STATES, :N_STATES]
-                rows = [r for r in rows if std[r] ** 2 < float(H[r] @ P @ H[r])]
-                if not rows:
-                    nav.counters[f"{self.name}_weak"] += 1
-                    return False
-            return nav.update(self, Measurement(query.t_ns, value, z[rows], H[rows], np.diag(np.square(std[rows]))))
+            return self._body_velocity(nav, query, value, std)
         H = np.zeros((2, N_STATES))
         first = 3 if self.target == "velocity" else 0
         H[0, first], H[1, first + 1] = 1.0, 1.0
@@ -87,3 +112,34 @@ class LearnedSource(AidSource):
             return fused
         return nav.update(self, Measurement(query.t_ns, value, value * query.dt_s, H,
                                             np.diag(np.square(std * query.dt_s))))
+
+    def _body_velocity(self, nav, query: LearnQuery, value: np.ndarray, std: np.ndarray) -> bool:
+        """Fuse a body-velocity answer with the rules of the module docstring (held error, NHC floor)."""
+        z, H = body_velocity_model(nav.state, value)
+        if self.nhc_floor > 0.0:
+            std = std.copy()
+            std[1:3] = np.maximum(std[1:3], self.nhc_floor)
+        var = np.square(std)
+        if self.bias is not None:
+            if nav.last_fused_t_ns != self.bias_fix_ns:  # the first answer of an outage: a new draw of the bias
+                self.bias_fix_ns = nav.last_fused_t_ns
+                nav.reset_states(self.bias, np.sqrt(self.held * var))
+            H = np.hstack([H, np.zeros((3, nav.n_states - N_STATES))])
+            H[:, self.bias] = np.eye(3)
+            z = z + nav.aug_value(self.bias)
+            var = (1.0 - self.held) * var
+        rows = self.body_rows
+        if self.where_better:
+            P = nav.kf.P[:N_STATES, :N_STATES]
+            rows = [r for r in rows if std[r] ** 2 < float(H[r, :N_STATES] @ P @ H[r, :N_STATES])]
+            if not rows:
+                nav.counters[f"{self.name}_weak"] += 1
+                return False
+        return nav.update(self, Measurement(query.t_ns, value, z[rows], H[rows], np.diag(var[rows])))
+
+    def get_state(self) -> dict:
+        return {**super().get_state(), "bias_fix_ns": int(self.bias_fix_ns)}
+
+    def set_state(self, state: dict) -> None:
+        super().set_state(state)
+        self.bias_fix_ns = int(state["bias_fix_ns"])
