@@ -186,7 +186,8 @@ def _alignment_summary(status: dict, t0_ns: int) -> str:
               f"{math.degrees(al['heading_std_rad']):.3f} deg, roll/pitch from {al['tilt_source']}")]
     for src, r in status["measurement_noise"].items():
         ratio = "" if "scale_diag" not in r else f", R / reported {[round(x, 2) for x in r['scale_diag']]}"
-        lines.append(f"{src} R diag: {[float(f'{x:.3g}') for x in np.diag(r['R'])]}{ratio}")
+        unit = {"gnss_pos": " [m^2, NED]", "gnss_vel": " [(m/s)^2, NED]"}.get(src, " [SI units squared]")
+        lines.append(f"{src} R diag{unit}: {[float(f'{x:.3g}') for x in np.diag(r['R'])]}{ratio}")
     return "\n".join(lines)
 
 
@@ -287,8 +288,9 @@ def replay(dataset, kf_gins_config, heading_unknown, params, adaptive_r, nhc, pr
            options, dvl, vb, outages, every, out, as_json, compensation, target, seed, verbose, mcap, quiet):
     """Run the navigation core in one process over DATASET and print its accuracy against the truth.
 
-    DATASET: rtklibexplorer, comma2k19, sim:car, sim:multirotor, sim:static, sim:auv, a dataset folder, or a
-    KF-GINS YAML file (same as --kf-gins-config). Position errors are horizontal/vertical in metres,
+    DATASET: rtklibexplorer, comma2k19, ansfl:Horizontal/path_N (also Vertical/, StraightLine/), akit:TrajectoryN,
+    sim:car, sim:multirotor, sim:static, sim:auv, a dataset folder, or a KF-GINS YAML file (same as
+    --kf-gins-config). Position errors are horizontal/vertical in metres,
     velocity in m/s, attitude in degrees; errors are computed only where truth exists.
     """
     from .datasets.registry import parse_loader_options
