@@ -128,6 +128,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
     if res.smoothed is not None and not as_json:
         click.echo("smoothed (forward-backward):\n" + format_table(metrics["smoothed"]))
+    if not as_json:
+        click.echo(_gnss_summary(res.status["counters"]))
     if compensator is not None and not as_json:
         click.echo(_learning_summary(metrics["compensation"], res.status["counters"]))
     if not as_json and (heading_unknown or adaptive_r is not None):
@@ -140,6 +142,19 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     if mcap is not None and not as_json:
         click.echo(f"wrote {mcap} (opens in Foxglove: map, 3-D pose, every message)")
     return metrics
+
+
+def _gnss_summary(counters: dict) -> str:
+    """One line on the GNSS fixes: fused, refused per reason (zennav.nav.aid.gnss's counters), gate resets and
+    outages, so that a run whose fixes were refused says so beside its table."""
+    fused = {k[5:-6]: n for k, n in counters.items() if k.startswith("gnss_") and k.endswith("_fused")}
+    skip = ("_fused", "_inflated")
+    refused = {k[5:]: n for k, n in counters.items()
+               if k.startswith("gnss_") and not k.endswith(skip) and k != "gnss_align_coarse"}
+    text = "GNSS fused: " + (", ".join(f"{k} {n}" for k, n in fused.items()) or "none")
+    text += "; refused: " + (", ".join(f"{k} {n}" for k, n in sorted(refused.items())) or "none")
+    resets, outages = counters.get("gate_reset", 0), counters.get("outage_declared", 0)
+    return text + f"; gate resets {resets}, outages declared {outages}"
 
 
 def _learning_summary(compensation: dict, engine_counters: dict) -> str:

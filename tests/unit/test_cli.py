@@ -31,6 +31,8 @@ def test_replay_kf_gins_config_with_outages_writes_outputs(tmp_path):
     assert res.exit_code == 0, res.output
     metrics = json.loads((out / "metrics.json").read_text())
     assert METRIC_KEYS <= metrics.keys()
+    fused = metrics["engine"]["counters"]["gnss_pos_fused"]
+    assert f"GNSS fused: pos {fused}, vel " in res.output and "outages declared 2" in res.output
     assert [(o["start_s"], o["duration_s"]) for o in metrics["outages"]] == [(40.0, 20.0), (80.0, 10.0)]
     assert set(metrics["attitude_rms_deg"]) == {"roll", "pitch", "yaw"}
     assert 0.0 < metrics["horizontal_rms_m"] < 5.0
