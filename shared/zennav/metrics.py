@@ -134,10 +134,8 @@ def format_table(m: dict) -> str:
         rows.append(("outage max drift RMS", f(m["outage_max_horizontal_rms_m"], " m")))
         rows.append(("outage max drift max", f(m["outage_max_horizontal_max_m"], " m")))
     for d in m.get("dives", []):
-        pct = "n/a" if d["drift_pct"] is None else f"{d['drift_pct']:.3f} %"
         rows.append((f"under water {d['start_s']:.0f}s..{d['end_s']:.0f}s",
-                     f"end {d['end_horizontal_m']:.2f} m, max {d['max_horizontal_m']:.2f} m, drift {pct} of "
-                     f"{d['distance_m']:.0f} m"))
+                     f"{dive_text(d)} of {d['distance_m']:.0f} m"))
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
@@ -164,6 +162,12 @@ def write_solution(out_dir: Path, res: ReplayResult) -> None:
     )
     fmts = ["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%.0f"]
     (out_dir / "nav.csv").write_text(header + "\n" + table_text(cols, fmts, ","), encoding="utf-8")
+
+
+def dive_text(d: dict) -> str:
+    """A dive of metrics.json's "dives" (see dives) in words: its end and largest horizontal error and its drift."""
+    pct = "n/a" if d["drift_pct"] is None else f"{d['drift_pct']:.3f} %"
+    return f"end {d['end_horizontal_m']:.2f} m, max {d['max_horizontal_m']:.2f} m, drift {pct}"
 
 
 def drift(ref_llh: np.ndarray, end_error_m: float) -> tuple[float, float | None]:

@@ -239,6 +239,8 @@ def write_report(run: Path, out: Path | None = None, spec: str | None = None, op
 
 def accuracy_rows(metrics: dict) -> list[tuple[str, list[str]]]:
     """The accuracy table: (row name, [forward, smoothed when present])."""
+    from .metrics import dive_text
+
     runs = [metrics] + ([metrics["smoothed"]] if isinstance(metrics.get("smoothed"), dict) else [])
 
     def f(x, unit):
@@ -261,12 +263,7 @@ def accuracy_rows(metrics: dict) -> list[tuple[str, list[str]]]:
         rows.append(("outage max drift RMS", [f(m.get("outage_max_horizontal_rms_m"), "m") for m in runs]))
         rows.append(("outage max drift max", [f(m.get("outage_max_horizontal_max_m"), "m") for m in runs]))
     for i, d in enumerate(metrics.get("dives", [])):
-        vals = []
-        for m in runs:
-            dd = m.get("dives", [])
-            pct = "n/a" if i >= len(dd) or dd[i]["drift_pct"] is None else f"{dd[i]['drift_pct']:.3f} %"
-            vals.append(f"end {dd[i]['end_horizontal_m']:.2f} m, max {dd[i]['max_horizontal_m']:.2f} m, drift {pct}"
-                        if i < len(dd) else "n/a")
+        vals = [dive_text(m["dives"][i]) if i < len(m.get("dives", [])) else "n/a" for m in runs]
         rows.append((f"under water {d['start_s']:.0f} s .. {d['end_s']:.0f} s, {d['distance_m']:.0f} m", vals))
     return rows
 

@@ -9,10 +9,15 @@ _FAST = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 def load_with_nodes(text: str):
-    """(yaml.safe_load(text), yaml.compose(text)); yaml.YAMLError (the Python parser's) on invalid YAML."""
+    """(yaml.safe_load(text), yaml.compose(text)), the data constructed from the one node tree parsed;
+    yaml.YAMLError (the Python parser's) on invalid YAML."""
+    loader = _FAST(text)
     try:
-        return yaml.load(text, Loader=_FAST), yaml.compose(text, Loader=_FAST)
+        root = loader.get_single_node()
+        return (None if root is None else loader.construct_document(root)), root
     except yaml.YAMLError:
         if _FAST is yaml.SafeLoader:
             raise
+    finally:
+        loader.dispose()
     return yaml.safe_load(text), yaml.compose(text)

@@ -141,8 +141,6 @@ def _run(run, args, speed: float, acks: EndAcks, pubs: dict, aid_publisher, stat
         from zennav.datasets.registry import load_dataset, parse_loader_options
 
         ds = load_dataset(args.source, **parse_loader_options(args.option))
-        for remark in ds.notes.get("remarks") or []:  # what the loader changed or left out
-            log.warning("%s: %s", args.source, remark)
         if args.heading_unknown:  # travels to the ins in stream_start's InitialState
             ds.initial = replace(ds.initial, heading_known=False)
         windows, events = sensor_events(ds, args.outage, args.outage_every)

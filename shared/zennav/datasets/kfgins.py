@@ -374,8 +374,7 @@ class _Config:
         if not isinstance(value, str) or not value:
             raise self.error((key,), f"expected a file path, got {value!r}")
         path = Path(value)
-        folder = self.path.parent
-        bases = [] if path.is_absolute() else [Path.cwd(), folder, folder.parent]
+        bases = [] if path.is_absolute() else self._bases()
         for candidate in [base / path for base in bases] or [path]:
             if candidate.is_file():
                 return candidate
@@ -392,9 +391,12 @@ class _Config:
         path = Path(value)
         if path.is_absolute():
             return path
-        folder = self.path.parent
-        return next((base / path for base in (Path.cwd(), folder, folder.parent) if (base / path).is_dir()),
-                    Path.cwd() / path)
+        return next((base / path for base in self._bases() if (base / path).is_dir()), Path.cwd() / path)
+
+    def _bases(self) -> list[Path]:
+        """Where a relative path is looked for, in order: the current directory (KF-GINS), the YAML's folder and the
+        folder above it."""
+        return [Path.cwd(), self.path.parent, self.path.parent.parent]
 
 
 def load_config(yaml_path, defer_truth: bool = False) -> Dataset:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import inspect
+import logging
 import os
 from collections.abc import Callable
 from functools import partial
@@ -9,6 +10,8 @@ from pathlib import Path
 
 from zennav.datasets.errors import DataError
 from zennav.nav.types import Dataset
+
+log = logging.getLogger("zennav.datasets")
 
 RECORDINGS = {"rtklibexplorer": "rtklibexplorer_drive_0708", "comma2k19": "comma2k19_example_segment"}
 SIM_KINDS = ("car", "multirotor", "static", "auv")
@@ -115,17 +118,21 @@ def _sim_loader(kind: str) -> tuple[Callable[..., Dataset], list[str]]:
 
 def _call_loader(spec: str, load: Callable[..., Dataset], accepted: list[str], options: dict) -> Dataset:
     """load(**options), a mistake in the options (an unknown name, a value of the wrong type or range) as one
-    DataError that names them."""
+    DataError that names them; the loader's remarks (what it changed or left out: notes["remarks"]) logged as
+    warnings."""
     unknown = sorted(set(options) - set(accepted))
     if unknown:
         raise DataError(spec, f"unknown loader option {', '.join(unknown)}; accepted: {', '.join(accepted) or 'none'}")
     try:
-        return load(**options)
+        ds = load(**options)
     except (TypeError, ValueError, ArithmeticError, IndexError) as e:
         if not options:
             raise
         given = ", ".join(f"{k}={v!r}" for k, v in options.items())
         raise DataError(spec, f"loader options {given} not usable: {e}") from None
+    for remark in ds.notes.get("remarks") or []:
+        log.warning("%s: %s", spec, remark)
+    return ds
 
 
 def parse_loader_options(items) -> dict:
