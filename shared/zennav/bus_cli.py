@@ -5,14 +5,13 @@ environment variables; see zennav.bus).
 """
 from __future__ import annotations
 
-import signal
 import sys
 import threading
 import time
 
 import click
 
-from .service import wait_event
+from .stopsignals import on_stop_signals
 
 _PASS = dict(ignore_unknown_options=True, allow_extra_args=True, help_option_names=[])
 
@@ -27,9 +26,9 @@ def _bus_options(f):
 
 
 def _stop_event() -> threading.Event:
+    """Set at the first SIGINT/SIGTERM (zennav.stopsignals), for the process's lifetime."""
     ev = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: ev.set())
+    on_stop_signals(lambda _name: ev.set())
     return ev
 
 
@@ -50,7 +49,7 @@ def router_cmd(listen, connect, zenoh_config, vehicle):
     click.echo(f"zennav router {bus.zid} listening on {listen or 'deploy/zenoh-router.json5 endpoints'}", err=True)
     try:
         last = None
-        while not wait_event(ev, 5.0):
+        while not ev.wait(5.0):
             peers = (len(bus.peers()), len(bus.routers()))
             if peers != last:
                 click.echo(f"router: {peers[0]} peers, {peers[1]} routers connected", err=True)
@@ -136,7 +135,7 @@ def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicl
     try:
         if until_stream_end:  # every ins acknowledged its end: its missing solutions get END_GRACE_S to arrive
             ended_at = None
-            while not wait_event(ev, 0.5) and (duration is None or time.monotonic() - t0 < duration):
+            while not ev.wait(0.5) and (duration is None or time.monotonic() - t0 < duration):
                 if ended_at is None and tally.ended():
                     ended_at = time.monotonic()
                 if ended_at is not None and time.monotonic() - ended_at > END_GRACE_S:
@@ -147,7 +146,7 @@ def record_cmd(output, keys, encoding, duration, until_stream_end, count, vehicl
                 click.echo(f"solutions: {tally.summary()}; not recovered by the subscription: "
                            f"{dict(bus.missed) or 0}", err=True)
         else:
-            wait_event(ev, duration)
+            ev.wait(duration)
     finally:
         bus.close()
         rec.close()

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
 import socket
 import tempfile
 import threading
@@ -263,7 +262,6 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
     bus = Bus(f"demo-{os.getpid()}", launch.vehicle, mode="peer", connect=[launch.rendezvous],
               listen=["tcp/127.0.0.1:0"], token=False)
     collector = _Collector(bus, prefixes)
-    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     with open(log, "w") as f:
         tee = _Tee(f)
         launcher = _DemoLauncher(launch, tee, bus, collector.complete, limit_s=launch.up_timeout_s + limit_s)
@@ -273,8 +271,6 @@ def run_set(launch_file: Path, out: Path, spec: DemoSpec, settings, limit_s: flo
         try:
             rc = launcher.run()
         finally:
-            for s, h in handlers.items():
-                signal.signal(s, h)
             bus.close()
             shutil.rmtree(keys, ignore_errors=True)
     if launcher.completed:

@@ -51,6 +51,7 @@ from pathlib import Path
 import yaml
 
 from . import pdeath
+from .stopsignals import on_stop_signals
 
 POLICIES = ("no", "on-failure", "always")
 
@@ -228,9 +229,15 @@ class Launcher:
         """Start everything (each service once the services in its ``after`` are alive), wait until every
         required service is alive, then supervise until Ctrl-C/SIGTERM or until service ``until`` exits.
         Returns 0 when stopped cleanly, 1 when the set could not be brought up."""
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, lambda signum, frame: self._request_stop(signum))
+        restore_signals = (on_stop_signals(lambda _name: self._request_stop())
+                           if threading.current_thread() is threading.main_thread() else None)
+        try:
+            return self._run(until)
+        finally:
+            if restore_signals is not None:
+                restore_signals()
+
+    def _run(self, until: str | None) -> int:
         t0 = time.monotonic()
         deadline = t0 + self.spec.up_timeout_s
         try:
@@ -290,7 +297,7 @@ class Launcher:
         self._wake.wait(timeout)
         self._wake.clear()
 
-    def _request_stop(self, signum=None) -> None:
+    def _request_stop(self) -> None:
         self._stop.set()
         self._wake.set()
 

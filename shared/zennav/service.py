@@ -15,12 +15,13 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import signal
 import sys
 import threading
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
+
+from .stopsignals import on_stop_signals
 
 if TYPE_CHECKING:  # zenoh is imported when a service opens its bus
     from .bus import Bus
@@ -86,12 +87,11 @@ class ServiceRunner:
         self._exit_deadline_s = args.exit_deadline
         self._deadline: threading.Timer | None = None
         self._hb: threading.Thread | None = None
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, self._on_signal)
+        self._restore_signals = (on_stop_signals(self._on_signal)
+                                 if threading.current_thread() is threading.main_thread() else None)
 
-    def _on_signal(self, signum, frame) -> None:
-        name = signal.Signals(signum).name
+    def _on_signal(self, name: str) -> None:
+        """A SIGINT/SIGTERM (zennav.stopsignals: called from a thread, not in the signal handler)."""
         self.log.info("%s received, stopping", name)
         self._stop.set()
         if self._deadline is None:  # the first signal arms the deadline of the stop (module docstring)
@@ -157,7 +157,7 @@ class ServiceRunner:
 
     def wait(self, timeout: float | None = None) -> bool:
         """Block until stopped (signal or stop()); True if stopped."""
-        return wait_event(self._stop, timeout)
+        return self._stop.wait(timeout)
 
     def serve(self, state: str = "running", detail: str = "") -> int:
         """Announce the service as ready, block until it is stopped, close it; the exit code of main()."""
@@ -177,6 +177,9 @@ class ServiceRunner:
             pass
         self.bus.close()
         self.log.info("%s stopped", self.name)
+        if self._restore_signals is not None and threading.current_thread() is threading.main_thread():
+            self._restore_signals()  # (set_wakeup_fd: main thread only; a close elsewhere ends the process)
+            self._restore_signals = None
 
 
 class EndAcks:
@@ -238,13 +241,3 @@ def wall_ns() -> int:
     return time.time_ns()
 
 
-def wait_event(ev: threading.Event, timeout: float | None = None, tick: float = 0.2) -> bool:
-    """Event.wait in short slices: a signal delivered to one of zenoh's threads does not interrupt the main
-    thread's wait, so the Python handler (which sets ``ev``) only runs when the main thread wakes up."""
-    deadline = None if timeout is None else time.monotonic() + timeout
-    while True:
-        left = tick if deadline is None else min(tick, deadline - time.monotonic())
-        if left <= 0:
-            return ev.is_set()
-        if ev.wait(left):
-            return True
