@@ -137,8 +137,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     if out is not None and not as_json:
         smoothed = f", {out / 'smoothed' / 'nav.txt'}, {out / 'smoothed' / 'nav.csv'}" if smooth else ""
         kf_nav = f", {KF_GINS_NAV}" if kf_gins else ""
-        click.echo(f"wrote {out / 'nav.txt'}{kf_nav}, {out / 'nav.csv'}, {out / 'metrics.json'}, aid.csv, biases.csv"
-                   f"{smoothed}")
+        click.echo(f"wrote {out / 'nav.txt'}{kf_nav}, {out / 'nav.csv'}, {out / 'metrics.json'}, aid.csv, biases.csv, "
+                   f"run.json{smoothed}")
     if mcap is not None and not as_json:
         click.echo(f"wrote {mcap} (opens in Foxglove: map, 3-D pose, every message)")
     return metrics
