@@ -447,7 +447,7 @@ def test_learning_ins_block_loop_publishes_the_step_wise_samples_queries_and_sol
         link = LearningLink(lambda kind, m, b=b: out[b].append((kind, m)), LOG, ("body_velocity",))
         nodes[b] = InsNode(lambda kind, m, b=b: out[b].append((kind, m)), LOG, learning=link, block_loop=b)
     for key_, m in msgs:
-        for b, node in nodes.items():
+        for node in nodes.values():
             node.on_sensor(key_, m)
             link = node.learn
             assert node.nav is not None and link is not None
