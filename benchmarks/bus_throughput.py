@@ -10,7 +10,9 @@
    - "ins-compiled": zennav-ins --compiled, batched only (each imu_batch through the engine's block loop compiled
               by numba; the same solutions);
    - "learn": zennav-ins --learning with zennav-trainer and zennav-predictor running (samples and queries
-              published, answers fused).
+              published, answers fused);
+   - "learn-compiled": the same with zennav-ins --learning --compiled, batched only (the block loop from one
+              learning event to the next: a fix, a query; numba's resident memory, benchmarks/memory.py).
    Each with one IMU sample per message and with ``zennav-ingest --batch N`` (--batch, default 50: up to N
    consecutive samples per imu_batch message, the same samples, order and solutions).
    Rate = IMU samples consumed / wall time between the consumer's first message and the stream's end; beside it
@@ -164,7 +166,8 @@ def start_consumer(procs: Procs, kind: str, bus_args: list[str], bus, solution_e
         procs.start([PY, "-m", "zennav.services.predictor", "--allow-unsigned", *bus_args], "predictor")
         procs.start([PY, "-m", "zennav.services.trainer", "--unsigned", "--device", "cpu", "--torch-threads", "1",
                      *bus_args], "trainer")
-        procs.start([PY, "-m", "zennav.services.ins", "--learning", *bus_args], "ins")
+        procs.start([PY, "-m", "zennav.services.ins", "--learning", *bus_args,
+                     *(["--compiled"] if kind == "learn-compiled" else [])], "ins")
         wait += ["predictor", "trainer"]
     if not bus.wait_alive(wait, 120):
         raise RuntimeError(f"{wait} did not come up: " + " | ".join(procs.log_tail(n, 500) for n in procs.names))
@@ -312,7 +315,7 @@ def throughput(kinds: list[str], routes: list[bool], duration: float, batch: int
                solution_every: int) -> list[dict]:
     """Every kind with one sample per message and with batch (ins-compiled: batched only); the ins also publishing
     one solution in solution_every (when > 1, batched)."""
-    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch}) if kind != "ins-compiled" or b > 1]
+    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch}) if not kind.endswith("-compiled") or b > 1]
     for kind in ("ins", "ins-compiled"):
         if kind in kinds and solution_every > 1 and batch > 1:
             cases.insert(cases.index((kind, batch, 1)) + 1, (kind, batch, solution_every))
@@ -410,7 +413,7 @@ def main() -> int:
                   + f", solution packed {c['solution_msg']}", flush=True)
     if args.only in (None, "throughput"):
         kinds = ["bus", "ins"] + ([] if args.no_compiled or args.batch <= 1 else ["ins-compiled"]) + \
-            ([] if args.no_learn else ["learn"])
+            ([] if args.no_learn else ["learn"] + ([] if args.no_compiled or args.batch <= 1 else ["learn-compiled"]))
         kinds = [k for k in kinds if args.consumers is None or k in args.consumers.split(",")]
         results += throughput(kinds, routes, args.duration, args.batch, args.repeat, args.solution_every)
     if args.only in (None, "latency"):

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from zennav.learn.elman import Elman, bipolar_sigmoid
+from zennav.learn.elman import Elman, bipolar_sigmoid, compiled_train_pass, train_pass
 
 
 def _sequence(n=400, seed=0):
@@ -104,3 +104,42 @@ def test_renormalize_keeps_what_the_network_computes():
     np.testing.assert_allclose([net.predict(x) for x in probe], before, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(net.win_x, (xs - new["x_mean"]) / new["x_std"], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(net.win_y, (ys - new["y_mean"]) / new["y_std"], rtol=1e-12, atol=1e-12)
+
+
+def test_training_pass_compiled_gives_the_python_floats_and_the_matrix_form():
+    """train_pass compiled by numba = train_pass as Python, bit for bit (weights, stored contexts, error sum,
+    context); and the matrix form of the same steps (numpy) to rounding."""
+    rng = np.random.default_rng(4)
+    n_in, n_h, n_out, n = 5, 6, 2, 40
+    arrays = [rng.normal(size=s) for s in ((n_h, n_in), (n_h, n_h), (n_h,), (n_out, n_h), (n_out,))]
+    window = [rng.normal(size=(n, n_in)), rng.normal(size=(n, n_out)), 0.1 * rng.normal(size=(n, n_h))]
+    runs = []
+    for fn in (train_pass, compiled_train_pass()):
+        a, w = [x.copy() for x in arrays], [x.copy() for x in window]
+        for _ in range(3):
+            sse, ctx = fn(*a, *w, 0.05, 0.3)
+        runs.append((sse, ctx, a, w))
+    (sse, ctx, a, w), other = runs
+    assert sse == other[0] and np.array_equal(ctx, other[1])
+    assert all(np.array_equal(x, y) for x, y in zip(a + w, other[2] + other[3]))
+    w1, w2, b1, w3, b3 = [x.copy() for x in arrays]  # the matrix form, one pass
+    x, y, c = (v.copy() for v in window)
+    ref_ctx, ref_sse = c[0].copy(), 0.0
+    for k in range(n):
+        c[k] = ref_ctx
+        h = bipolar_sigmoid(w1 @ x[k] + w2 @ ref_ctx + b1)
+        e = w3 @ h + b3 - y[k]
+        ref_sse += float(e @ e)
+        dh = (w3.T @ e) * 0.5 * (1.0 - h * h)
+        w3 -= 0.05 * np.outer(e, h)
+        b3 -= 0.05 * e
+        w1 -= 0.05 * np.outer(dh, x[k])
+        w2 -= 0.05 * np.outer(dh, ref_ctx)
+        b1 -= 0.05 * dh
+        ref_ctx = h + 0.3 * ref_ctx
+    a, w = [v.copy() for v in arrays], [v.copy() for v in window]
+    sse, ctx = train_pass(*a, *w, 0.05, 0.3)
+    np.testing.assert_allclose(sse, ref_sse, rtol=1e-12)
+    np.testing.assert_allclose(ctx, ref_ctx, rtol=1e-12, atol=1e-14)
+    for got, want in zip(a + w, [w1, w2, b1, w3, b3, x, y, c]):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)

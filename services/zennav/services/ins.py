@@ -81,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "numba (the same solutions; the engine's CPU per sample about 15x less, the whole ins's about "
                         "2.7x with a solution per sample, benchmarks/bus_throughput.py; numba and the kernels add "
                         "about 115 MB resident memory, benchmarks/memory.py; compiled once per machine, loaded in "
-                        "about a second; not with --learning, whose tap takes every sample step-wise)")
+                        "about a second; with --learning the loop runs from one learning event to the next: a fix, "
+                        "a query; the drift target's shadow INSs take every sample step-wise)")
     p.add_argument("--attitude-alignment", action="store_true",
                    help="take roll/pitch from the attitude service during coarse alignment (heading unknown)")
     p.add_argument("--attitude-tilt-std", type=float, default=1.0,
@@ -109,8 +110,6 @@ def main(argv=None) -> int:
         out = M.Keys(run.keys.vehicle, args.nav_prefix)
     except (ParamError, ValueError) as e:
         return run.fail(f"bad ins parameters: {e}")
-    if args.compiled and args.learning:
-        return run.fail("--compiled: not with --learning (the learning tap takes every sample step-wise)")
     import zennav.nav.navigator  # noqa: F401  (import the core, scipy included, before announcing)
 
     if args.compiled:  # load (or compile, once per machine) the block loop before announcing

@@ -1,4 +1,5 @@
-"""Elman recurrent network with online learning on a sliding window (seed 002). numpy only, edge-side.
+"""Elman recurrent network with online learning on a sliding window (seed 002). The forward pass (``step``, the
+predictor's) is numpy only, edge-side; the training pass (``train_pass``) is compiled by numba where it trains.
 
 J. L. Elman, "Finding structure in time", Cognitive Science 14 (1990) 179-211. As seed 002 (eq. 6-8):
   u(k)  = f(W1 x(k) + W2 uc(k) + b1)      hidden layer, f(a) = (1 - e^-a) / (1 + e^-a) (bipolar sigmoid)
@@ -36,6 +37,67 @@ def step(arrays: Mapping[str, np.ndarray], norm: Mapping[str, np.ndarray], x, co
     xn = (np.asarray(x, dtype=float) - norm["x_mean"]) / norm["x_std"]
     h = bipolar_sigmoid(arrays["w1"] @ xn + arrays["w2"] @ context + arrays["b1"])
     return (arrays["w3"] @ h + arrays["b3"]) * norm["y_std"] + norm["y_mean"], h + context_gain * context
+
+
+def train_pass(w1, w2, b1, w3, b3, win_x, win_y, win_ctx, lr, gain):
+    """One pass of per-sample gradient steps (lr) over the window (win_x, win_y: normalised inputs and targets, oldest
+    first), in place on the weights (w1, w2, b1, w3, b3): the error of y = W3 f(W1 x + W2 uc + b1) + b3 back-propagated
+    with the context uc taken as an input. The contexts are recomputed with the current weights from the oldest
+    sample's stored one (win_ctx, rewritten; the next uc = f(..) + gain uc). Returns (sum of squared errors, the
+    context after the newest sample). Scalar loops in a fixed order: the same floats as plain Python and compiled
+    (compiled_train_pass)."""
+    n_h, n_in = w1.shape
+    n_out = w3.shape[0]
+    ctx = win_ctx[0].copy()
+    h, e, dh = np.empty(n_h), np.empty(n_out), np.empty(n_h)
+    sse = 0.0
+    for k in range(win_x.shape[0]):
+        win_ctx[k, :] = ctx
+        for i in range(n_h):
+            a1, a2 = 0.0, 0.0
+            for j in range(n_in):
+                a1 += w1[i, j] * win_x[k, j]
+            for j in range(n_h):
+                a2 += w2[i, j] * ctx[j]
+            h[i] = math.tanh(0.5 * (a1 + a2 + b1[i]))  # bipolar_sigmoid
+        for o in range(n_out):
+            y = 0.0
+            for i in range(n_h):
+                y += w3[o, i] * h[i]
+            e[o] = y + b3[o] - win_y[k, o]
+            sse += e[o] * e[o]
+        for i in range(n_h):
+            g = 0.0
+            for o in range(n_out):
+                g += w3[o, i] * e[o]
+            dh[i] = g * 0.5 * (1.0 - h[i] * h[i])
+        for o in range(n_out):
+            for i in range(n_h):
+                w3[o, i] -= lr * (e[o] * h[i])
+            b3[o] -= lr * e[o]
+        for i in range(n_h):
+            for j in range(n_in):
+                w1[i, j] -= lr * (dh[i] * win_x[k, j])
+            for j in range(n_h):
+                w2[i, j] -= lr * (dh[i] * ctx[j])
+            b1[i] -= lr * dh[i]
+        for i in range(n_h):
+            ctx[i] = h[i] + gain * ctx[i]
+    return sse, ctx
+
+
+_compiled_pass = None
+
+
+def compiled_train_pass():
+    """train_pass compiled by numba (cached on disk beside this module; imported at the first training pass: the
+    predictor's forward pass, ``step``, stays numpy only); NUMBA_DISABLE_JIT=1: train_pass itself."""
+    global _compiled_pass
+    if _compiled_pass is None:
+        import numba
+
+        _compiled_pass = numba.njit(cache=True)(train_pass)
+    return _compiled_pass
 
 
 class Elman:
@@ -80,9 +142,6 @@ class Elman:
         """Aligned, the window holds min_samples, and the last training RMSE is under the threshold."""
         return self.aligned and len(self.win_x) >= self.min_samples and self.train_rmse <= self.threshold
 
-    def _hidden(self, xn: np.ndarray, ctx: np.ndarray) -> np.ndarray:
-        return bipolar_sigmoid(self.w1 @ xn + self.w2 @ ctx + self.b1)
-
     def learn(self, x, y) -> float | None:
         """Add (x, y) (physical units) as the newest window sample and train on the window.
 
@@ -101,25 +160,9 @@ class Elman:
         return self.train_rmse
 
     def _train_pass(self) -> float:
-        """One pass of per-sample gradient steps from the oldest window sample to the newest.
-
-        The contexts are recomputed with the current weights from the oldest sample's stored context.
-        """
-        ctx, sse = self.win_ctx[0].copy(), 0.0
-        for i in range(len(self.win_x)):
-            xn, yn = self.win_x[i], self.win_y[i]
-            self.win_ctx[i] = ctx
-            h = self._hidden(xn, ctx)
-            e = self.w3 @ h + self.b3 - yn
-            sse += float(e @ e)
-            dh = (self.w3.T @ e) * 0.5 * (1.0 - h * h)
-            self.w3 -= self.lr * np.outer(e, h)
-            self.b3 -= self.lr * e
-            self.w1 -= self.lr * np.outer(dh, xn)
-            self.w2 -= self.lr * np.outer(dh, ctx)
-            self.b1 -= self.lr * dh
-            ctx = h + self.context_gain * ctx
-        self.context = ctx
+        """One pass of per-sample gradient steps from the oldest window sample to the newest (train_pass, compiled)."""
+        sse, self.context = compiled_train_pass()(self.w1, self.w2, self.b1, self.w3, self.b3, self.win_x,
+                                                  self.win_y, self.win_ctx, self.lr, self.context_gain)
         return math.sqrt(sse / (len(self.win_x) * self.n_out))
 
     def predict(self, x) -> np.ndarray | None:

@@ -12,10 +12,12 @@ from it with the stream's messages since (fetched from the ingest's history, zen
 samples lost in a gap up to bridge_max_s are bridged (the next sample's rates held over the gap); after a
 longer gap the ins re-aligns as a late joiner. Learning (a LearningLink given; off by default): the engine
 emits training samples and queries (NavConfig.learning), the link publishes them and fuses the answers
-(zennav.learn.link). Block loop (``block_loop``, learning off): the IMU samples of one sensor message (an imu_batch)
-are collected and run through the engine's block loop (Navigator.run_imu: compiled by numba, or as Python), up to
-each GNSS fix or sample the step-wise engine must take, which on_imu takes as without it; the loop's rows (each
-sample's navigation state and 1-sigma) make every sample's solution the step-wise one, float for float.
+(zennav.learn.link); only the targets it publishes run in the engine (the drift target's shadow INSs only for
+drift). Block loop (``block_loop``): the IMU samples of one sensor message (an imu_batch) are collected and run
+through the engine's block loop (Navigator.run_imu: compiled by numba, or as Python), up to each GNSS fix or sample
+the step-wise engine must take (with learning also each sample at which the tap may query; none while a shadow INS
+runs), which on_imu takes as without it; the loop's rows (each sample's navigation state and 1-sigma) make every
+sample's solution the step-wise one, float for float, and the learning samples and queries are the step-wise ones.
 """
 from __future__ import annotations
 
@@ -46,8 +48,8 @@ class InsNode:
     DVL and depth samples (zennav.messages.AID_STREAMS) come before the IMU sample that reaches their time; they
     are held until it is processed and then go to ``Navigator.on_aid`` before its solution is published, as the
     in-process replay hands them over (zennav.replay.run_replay). block_loop: "compiled" (numba) or "python" runs
-    the IMU samples of one message through the engine's block loop (module docstring; None, or learning on: each
-    sample step-wise). put_solution(nav, t_ns, row, std, cseq, pub_ns) publishes one solution from its floats (row:
+    the IMU samples of one message through the engine's block loop (module docstring; None: each sample
+    step-wise). put_solution(nav, t_ns, row, std, cseq, pub_ns) publishes one solution from its floats (row:
     the 10 of the navigation state, std: the 9 1-sigma; the service packs them straight into bytes,
     zennav.messages.SolutionPacker); None: publish("solution", its message map)."""
 
@@ -69,7 +71,7 @@ class InsNode:
                                        on_batch=self._batch)
         if block_loop not in (None, "compiled", "python"):
             raise ValueError(f"block_loop {block_loop!r}: compiled, python or None")
-        self.block_loop = block_loop if learning is None else None  # the learning tap takes every sample step-wise
+        self.block_loop = block_loop
         self._block: list[dict] = []  # IMU samples collected for the block loop (block_loop)
         self.on_sensor = self.follower.on_message
         self.put_solution = put_solution or self._solution_map
@@ -141,7 +143,8 @@ class InsNode:
         config = nav_config(start["config"], self.filter_params)
         initial = M.map_to_dataclass(InitialState, initial_map)
         if self.learn is not None:
-            config = config.with_(learning=True, dvl_learned="dvl_beam" in self.learn.targets)
+            targets = self.learn.targets  # the drift target's shadow INSs only where its samples are published
+            config = config.with_(learning=True, dvl_learned="dvl_beam" in targets, learn_drift="drift" in targets)
             self.learn.reset(start["src"])
         self.nav = nav = Navigator(config, initial)
         self._initial, self._late, self._t_imu = initial_map, late, int(initial.t_ns)
@@ -293,6 +296,8 @@ class InsNode:
                 self.sol_count += 1
                 if self.sol_count % every == 0:
                     put(nav, t[i], row, std, cseq[i], pub_ns[i])
+            if self.learn is not None:  # no samples or queries in a block; the unanswered queries expire
+                self.learn.after_imu(nav)
             self._after(nav, t[k1 - 1], cseq[k1 - 1])
             k = k1
 
