@@ -66,12 +66,9 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.config = nav_config(ds.config, filter_settings(spec, params, profile, constraints))
     except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
-    for remark in ds.notes.get("remarks") or []:  # what a loader changed or left out (KF-GINS configurations)
+    remarks = ds.notes.get("remarks") or []  # what a loader changed or left out (KF-GINS configurations)
+    for remark in remarks:
         click.echo(f"note: {remark}", err=True)
-    run_s = (int(ds.imu.t_ns[-1]) - int(ds.imu.t_ns[0])) / 1e9  # outage times count from the first IMU sample
-    for start, duration in outages:
-        if start >= run_s:
-            click.echo(f"note: outage {start:g}:{duration:g} starts after the run's {run_s:.1f} s: none", err=True)
     kf_gins = ds.notes.get("format") == "KF-GINS"
     if out is None and kf_gins:  # as KF-GINS: into the configuration's outputpath
         out = Path(ds.notes["outputpath"])
@@ -97,9 +94,20 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         from .learn.loop import make_compensator
 
         compensator = make_compensator(compensation, target, seed)
-    res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
-                     smoothing=smooth, epoch_due=recorder.due_ns)
-    progress.close()
+    shown = len(remarks)
+    try:  # a long IMU file is read while the run starts (zennav.datasets.streamed): its defects show here
+        res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
+                         smoothing=smooth, epoch_due=recorder.due_ns)
+    except DataError as e:
+        raise click.ClickException(str(e)) from None
+    finally:
+        progress.close()
+    for remark in remarks[shown:]:  # the remarks on the part read while the run started
+        click.echo(f"note: {remark}", err=True)
+    run_s = (int(ds.imu.t_ns[-1]) - int(ds.imu.t_ns[0])) / 1e9  # outage times count from the first IMU sample
+    for start, duration in outages:
+        if start >= run_s:
+            click.echo(f"note: outage {start:g}:{duration:g} starts after the run's {run_s:.1f} s: none", err=True)
     if "truth_file" in ds.notes:  # a KF-GINS truth file, read after the run
         from .datasets.kfgins import load_deferred_truth
 
