@@ -228,7 +228,7 @@ def run_replay(
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
     tests and debugging), "lazy" (the first stretch as Python, then numba and the compiled kernels load, about a
     second, and the rest runs compiled: the first samples without waiting for numba, the same floats); None: "lazy"
-    where ``use_jit`` says, else "step" (a head runs as "python" then, as with "lazy"). The block loop runs only
+    where ``use_jit`` says, else "step" (a head runs "step" then, and "python" with "lazy"). The block loop runs only
     where the run needs no step-wise hand-over (no odometer stream, no smoothing; with a compensator, from one
     learning event to the next: Navigator.run_imu); epoch_due() (optional) says from which IMU time on_epoch must
     see the epochs (None: every one); without it on_epoch sees every epoch and the run goes step by step; in the
@@ -247,7 +247,7 @@ def run_replay(
         if isinstance(imu, StreamedImu) and imu.pending else None
     if head is not None:
         assert isinstance(imu, StreamedImu)
-        run.start(head, imu.head, "python" if loop in (None, "lazy") else loop)  # numba after the head
+        run.start(head, imu.head, {None: "step", "lazy": "python"}.get(loop, loop))  # numba after the head
         run.advance(head, None)
     if head is not None:  # the rest of the IMU data now: loading, not the loop (as numba's, run.waited)
         assert isinstance(imu, StreamedImu)
