@@ -243,14 +243,11 @@ def run_replay(
     nav.recorder = rec
     run = _Run(ds, nav, compensator, on_epoch, epoch_due, aid_streams(ds, nav))
     imu = ds.imu
-    head = head_plan(ds, imu.head, outages, outage_every) \
-        if isinstance(imu, StreamedImu) and imu.pending else None
-    if head is not None:
+    head = head_plan(ds, imu.head, outages, outage_every) if isinstance(imu, StreamedImu) and imu.pending else None
+    if head is not None:  # the samples the head decides, then the rest of the IMU data (loading, not the loop)
         assert isinstance(imu, StreamedImu)
-        run.start(head, imu.head, {None: "step", "lazy": "python"}.get(loop, loop))  # numba after the head
+        run.start(head, imu.head, "step" if loop is None else "python" if loop == "lazy" else loop)  # numba: after
         run.advance(head, None)
-    if head is not None:  # the rest of the IMU data now: loading, not the loop (as numba's, run.waited)
-        assert isinstance(imu, StreamedImu)
         w0 = time.perf_counter()
         imu.whole()
         run.waited += time.perf_counter() - w0

@@ -66,8 +66,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         ds.config = nav_config(ds.config, filter_settings(spec, params, profile, constraints))
     except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
-    remarks = ds.notes.get("remarks") or []  # what a loader changed or left out (KF-GINS configurations)
-    for remark in remarks:
+    shown = len(ds.notes.get("remarks") or [])
+    for remark in ds.notes.get("remarks") or []:  # what a loader changed or left out (KF-GINS configurations)
         click.echo(f"note: {remark}", err=True)
     kf_gins = ds.notes.get("format") == "KF-GINS"
     if out is None and kf_gins:  # as KF-GINS: into the configuration's outputpath
@@ -94,7 +94,6 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         from .learn.loop import make_compensator
 
         compensator = make_compensator(compensation, target, seed)
-    shown = len(remarks)
     try:  # a long IMU file is read while the run starts (zennav.datasets.streamed): its defects show here
         res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
                          smoothing=smooth, epoch_due=recorder.due_ns)
@@ -102,7 +101,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         raise click.ClickException(str(e)) from None
     finally:
         progress.close()
-    for remark in remarks[shown:]:  # the remarks on the part read while the run started
+    for remark in (ds.notes.get("remarks") or [])[shown:]:  # on the part read while the run started
         click.echo(f"note: {remark}", err=True)
     run_s = (int(ds.imu.t_ns[-1]) - int(ds.imu.t_ns[0])) / 1e9  # outage times count from the first IMU sample
     for start, duration in outages:

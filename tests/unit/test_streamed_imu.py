@@ -110,3 +110,21 @@ def test_a_changed_file_and_a_late_defect_are_data_errors(tmp_path, monkeypatch)
     assert not ds.notes["remarks"]
     run_replay(ds)
     assert ds.notes["remarks"] and "1 rows left out" in ds.notes["remarks"][0]
+
+
+def test_the_command_words_what_it_finds_after_the_head(tmp_path, monkeypatch):
+    """zennav replay: a remark on the rest of the file as a note, a defect in it as the command's error."""
+    from click.testing import CliRunner
+
+    from zennav.cli import main
+
+    monkeypatch.setattr(kfgins, "IMU_HEAD_BYTES", 40_000)
+    yaml_path = kfgins.write_dataset(make_dataset("car", duration_s=5.0, seed=3), tmp_path / "kf")
+    imu_path = next((tmp_path / "kf").glob("*_imu.txt"))
+    lines = imu_path.read_text().splitlines(keepends=True)
+    imu_path.write_text("".join(lines[:-10] + lines[-11:]))  # a duplicated row after the head
+    r = CliRunner().invoke(main, ["replay", str(yaml_path), "-q", "--out", str(tmp_path / "out")])
+    assert r.exit_code == 0 and f"note: {imu_path.name}: 1 rows left out" in r.output
+    imu_path.write_text("".join(lines[:-10] + ["1 2 3\n"] + lines[-10:]))
+    r = CliRunner().invoke(main, ["replay", str(yaml_path), "-q", "--out", str(tmp_path / "out")])
+    assert r.exit_code == 1 and f"{imu_path}:{len(lines) - 9}: line has 3 columns" in r.output
