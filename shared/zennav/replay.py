@@ -340,8 +340,8 @@ class _Run:
                     nav.on_gnss(gnss.fix_at(index))
                 else:
                     held.append((kind, index))
-            if self.blocks and not held:
-                due = self.epoch_due() if self.epoch_due is not None else None
+            due = None if not self.blocks or held else 2**62 if self.epoch_due is None else self.epoch_due()
+            if due is not None:  # (epoch_due() None: on_epoch sees every epoch, step by step)
                 k_next = ins[j][0] if j < len(ins) else k_end  # the next event's IMU sample (None: not known)
                 if self.load_jit and i > 0:  # the first samples ran as Python: now the compiled kernels
                     w0 = time.perf_counter()
@@ -351,8 +351,7 @@ class _Run:
                     self.jit, self.load_jit = True, False
                     self.waited += time.perf_counter() - w0
                 k_stop = min(k_stop_all if k_next is None else k_next, k + LAZY_FIRST if self.load_jit else k_stop_all)
-                k_run = nav.run_imu(*self.block_args, k, k_stop, 2**62 if due is None else due, self.rows,
-                                    self.row_std, self.jit)
+                k_run = nav.run_imu(*self.block_args, k, k_stop, due, self.rows, self.row_std, self.jit)
                 if k_run > k:
                     n_run = k_run - k
                     t_out[i:i + n_run] = self.block_args[0][k:k_run]

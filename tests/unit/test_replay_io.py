@@ -90,3 +90,13 @@ def test_block_loop_that_loads_numba_after_its_first_stretch_gives_the_python_fl
                  (a.outage, b.outage)):
         assert np.array_equal(x, y)
     assert a.status["counters"] == b.status["counters"]
+
+
+def test_an_epoch_hook_that_wants_every_epoch_sees_every_epoch():
+    """epoch_due() None (an MCAP recording): on_epoch sees every epoch in any loop, the block loop's too."""
+    ds = make_dataset("car", duration_s=5.0, seed=5)
+    seen: dict[str, list[int]] = {"step": [], "python": []}
+    for loop, times in seen.items():
+        res = run_replay(ds, loop=loop, on_epoch=lambda nav, times=times: times.append(nav.t_ns),
+                         epoch_due=lambda: None)
+        assert times == res.t_ns.tolist()
