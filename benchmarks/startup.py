@@ -5,8 +5,8 @@
 - ``zennav replay SPEC``: from process start (this script's spawn) to the dataset loaded, the engine built and the
   first IMU sample the engine processed, wall and CPU seconds (CPU: what the process itself spent, not inflated by
   a busy machine), median of --repeat runs after one unmeasured warm-up run (file caches, .pyc: the children run
-  without PYTHONDONTWRITEBYTECODE, as an installation does, unless --no-pyc; then every run compiles zennav's
-  sources, about 0.3 s more). The child runs
+  without PYTHONDONTWRITEBYTECODE, as an installation does, unless --no-pyc; then, where no .pyc was written
+  before, every run compiles zennav's sources, about 0.2 s more). The child runs
   the product's own command line (zennav.cli.main, standalone) with timestamps added from outside: when
   load_dataset returns, when a Navigator is constructed and when its first on_imu returns (then it exits: the
   rest is the core's speed; a replay that never calls on_imu fails here).
@@ -112,7 +112,7 @@ def main() -> int:
                     help="[s] of the simulated car drive written as KF-GINS files (0: none)")
     ap.add_argument("--json", default=None, help="also write the results here")
     ap.add_argument("--no-pyc", action="store_true",
-                    help="keep PYTHONDONTWRITEBYTECODE if set (each run compiles zennav's sources)")
+                    help="keep PYTHONDONTWRITEBYTECODE if set (no .pyc written; those already written are read)")
     args = ap.parse_args()
     if not args.no_pyc:
         ENV.pop("PYTHONDONTWRITEBYTECODE", None)
