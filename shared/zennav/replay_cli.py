@@ -59,7 +59,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     from .run_outputs import RunRecorder
 
     try:
-        ds = load_dataset(spec, defer_truth=True, **(options or {}))  # read after the run: start-up time
+        # the truth read after the run, a long IMU file while it starts (zennav.datasets.streamed): start-up time
+        ds = load_dataset(spec, defer_truth=True, stream_imu=True, **(options or {}))
         if odometer is not None:
             ds.odometer = load_kfgins_odometer(odometer)
         # the ins's filter on the dataset's sensors

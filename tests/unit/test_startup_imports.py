@@ -48,6 +48,7 @@ def test_a_long_kfgins_file_starts_without_polars(tmp_path):
     from zennav.sim.scenarios import make_dataset
 
     yaml_path = kfgins.write_dataset(make_dataset("car", duration_s=40.0, seed=1), tmp_path)
-    code = f"from zennav.datasets.registry import load_dataset\nds = load_dataset({str(yaml_path)!r}, defer_truth=True)"
+    code = (f"from zennav.datasets.registry import load_dataset\n"
+            f"ds = load_dataset({str(yaml_path)!r}, defer_truth=True, stream_imu=True)")
     assert _modules_after(code, ("polars", "zennav.datasets.streamed")) == ["zennav.datasets.streamed"]
     assert _modules_after(code + "\nds.imu.t_ns", ("polars",)) == ["polars"]  # the check sees it

@@ -55,12 +55,11 @@ def _same(a, b) -> None:
 @pytest.mark.parametrize("loop", [None, "python"])
 def test_a_run_started_on_the_head_is_the_run_on_the_whole(kf_yaml, monkeypatch, loop):
     yaml_path = kf_yaml
-    monkeypatch.setattr(kfgins, "IMU_HEAD_BYTES", 0)  # read whole
     whole = kfgins.load_config(yaml_path)
-    assert not isinstance(whole.imu, StreamedImu)
+    assert not isinstance(whole.imu, StreamedImu)  # unless asked for
     monkeypatch.setattr(kfgins, "IMU_HEAD_BYTES", 40_000)  # about 1.3 s of the 20 s
     for outages, every in (((), None), (((1.2, 2.0),), None), ((), (10.0, 3.0, 1.1))):
-        ds = kfgins.load_config(yaml_path)
+        ds = kfgins.load_config(yaml_path, stream_imu=True)
         assert isinstance(ds.imu, StreamedImu) and ds.imu.pending
         head = head_plan(ds, ds.imu.head, outages, every)
         assert head is not None and head.inserts  # the head reaches the first GNSS fix
@@ -77,7 +76,7 @@ def test_a_run_started_on_the_head_is_the_run_on_the_whole(kf_yaml, monkeypatch,
 
 def test_the_head_plan_stops_at_endtime_and_before_outages(kf_yaml, monkeypatch):
     monkeypatch.setattr(kfgins, "IMU_HEAD_BYTES", 40_000)
-    ds = kfgins.load_config(kf_yaml)
+    ds = kfgins.load_config(kf_yaml, stream_imu=True)
     assert isinstance(ds.imu, StreamedImu)
     t0, t_head = int(ds.initial.t_ns), ds.imu.head.t_ns
     plan = head_plan(ds, ds.imu.head)
@@ -94,7 +93,7 @@ def test_the_head_plan_stops_at_endtime_and_before_outages(kf_yaml, monkeypatch)
 def test_a_changed_file_and_a_late_defect_are_data_errors(tmp_path, monkeypatch):
     monkeypatch.setattr(kfgins, "IMU_HEAD_BYTES", 40_000)
     yaml_path = kfgins.write_dataset(make_dataset("car", duration_s=5.0, seed=3), tmp_path / "kf")
-    ds = kfgins.load_config(yaml_path)
+    ds = kfgins.load_config(yaml_path, stream_imu=True)
     imu_path = Path(ds.imu.source)
     lines = imu_path.read_text().splitlines(keepends=True)
     first = lines[0].split()
@@ -103,11 +102,11 @@ def test_a_changed_file_and_a_late_defect_are_data_errors(tmp_path, monkeypatch)
     with pytest.raises(DataError, match="changed while it was read"):
         run_replay(ds)
     imu_path.write_text("".join(lines[:-10] + ["1 2 3\n"] + lines[-10:]))  # a bad line after the head
-    ds = kfgins.load_config(yaml_path)
+    ds = kfgins.load_config(yaml_path, stream_imu=True)
     with pytest.raises(DataError, match=f"{imu_path}:{len(lines) - 9}: "):
         ds.imu.whole()
     imu_path.write_text("".join(lines[:-10] + lines[-11:]))  # a duplicated row after the head: a remark then
-    ds = kfgins.load_config(yaml_path)
+    ds = kfgins.load_config(yaml_path, stream_imu=True)
     assert not ds.notes["remarks"]
     run_replay(ds)
     assert ds.notes["remarks"] and "1 rows left out" in ds.notes["remarks"][0]

@@ -414,9 +414,12 @@ class _Config:
         return [Path.cwd(), self.path.parent, self.path.parent.parent]
 
 
-def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
+def load_config(yaml_path, defer_truth: bool = False, stream_imu: bool = False) -> Dataset:
     """KF-GINS YAML configuration -> Dataset, everything converted once to SI. defer_truth: leave the truth file
     (as large as the IMU file) unread, described in notes["truth_file"], for load_deferred_truth after the run.
+    stream_imu: an IMU file longer than IMU_HEAD_BYTES comes as a StreamedImu (zennav replay: the run starts on its
+    head; the rest, its defects and remarks when it is first used; the GNSS epochs after its last sample left out
+    then).
 
     KF-GINS units: initpos [deg, deg, m], initatt/initattstd [deg], initgyrbias/initbgstd/gbstd [deg/h],
     initaccbias/initbastd/abstd [mGal], initgyrscale/initaccscale/initsgstd/initsastd/gsstd/asstd [ppm], arw
@@ -426,8 +429,7 @@ def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
     truthpath (.nav), truthinfo {fields, source, at_antenna}, imunoise.acccorrtime [h].
     The time window keeps IMU samples in [starttime, endtime] and GNSS epochs in (starttime, endtime], as KF-GINS;
     the initial state is at the first IMU sample of the window; config.end_t_ns is endtime (None for -1: to the last
-    sample). An IMU file longer than IMU_HEAD_BYTES comes as a StreamedImu (the rest read on first use; the GNSS
-    epochs after its last sample left out then).
+    sample).
     """
     yaml_path = Path(yaml_path)
     cfg = _Config(yaml_path)
@@ -492,7 +494,7 @@ def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
     imu_path, gnss_path = cfg.file("imupath"), cfg.file("gnsspath")
     vel_path, truth_path = cfg.file("gnssvelpath", required=False), cfg.file("truthpath", required=False)
 
-    raw = load_imu(imu_path, int(columns), remarks=cfg.notes, head_bytes=IMU_HEAD_BYTES)
+    raw = load_imu(imu_path, int(columns), remarks=cfg.notes, head_bytes=IMU_HEAD_BYTES if stream_imu else 0)
     gnss = load_gnss(gnss_path, vel_path, remarks=cfg.notes)
     end_ns = None if endtime < 0 else int(_t_ns(endtime))
 
