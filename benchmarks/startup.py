@@ -4,7 +4,9 @@
 - ``zennav --help``: wall time of the whole command (the console script), median of --repeat runs.
 - ``zennav replay SPEC``: from process start (this script's spawn) to the dataset loaded, the engine built and the
   first IMU sample the engine processed, wall and CPU seconds (CPU: what the process itself spent, not inflated by
-  a busy machine), median of --repeat runs after one unmeasured warm-up run (file caches, .pyc). The child runs
+  a busy machine), median of --repeat runs after one unmeasured warm-up run (file caches, .pyc: the children run
+  without PYTHONDONTWRITEBYTECODE, as an installation does, unless --no-pyc; then, where no .pyc was written
+  before, every run compiles zennav's sources, about 0.2 s more). The child runs
   the product's own command line (zennav.cli.main, standalone) with timestamps added from outside: when
   load_dataset returns, when a Navigator is constructed and when its first on_imu returns (then it exits: the
   rest is the core's speed; a replay that never calls on_imu fails here).
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -73,9 +76,12 @@ main()
 """
 
 
+ENV = dict(os.environ)  # the children's (main: without PYTHONDONTWRITEBYTECODE unless --no-pyc)
+
+
 def wall(argv: list[str]) -> float:
     t0 = time.monotonic()
-    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True)
+    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True, env=ENV)
     return time.monotonic() - t0
 
 
@@ -83,7 +89,7 @@ def replay_marks(spec: str, out: Path) -> dict:
     """One replay of spec in a fresh process up to its first sample: wall and CPU seconds at each mark, modules."""
     t0 = time.monotonic()
     r = subprocess.run([PY, "-c", CHILD % (HEAVY,), spec, "-q", "--out", str(out)], stdout=subprocess.DEVNULL,
-                       stderr=subprocess.PIPE, check=True)
+                       stderr=subprocess.PIPE, check=True, env=ENV)
     line = next(ln for ln in r.stderr.decode().splitlines() if ln.startswith("STARTUP "))
     m = json.loads(line[8:])
     res = {"loaded": m.pop("loaded")}
@@ -105,7 +111,12 @@ def main() -> int:
     ap.add_argument("--kf-gins-duration", type=float, default=1800.0,
                     help="[s] of the simulated car drive written as KF-GINS files (0: none)")
     ap.add_argument("--json", default=None, help="also write the results here")
+    ap.add_argument("--no-pyc", action="store_true",
+                    help="keep PYTHONDONTWRITEBYTECODE if set (no .pyc written; those already written are read)")
     args = ap.parse_args()
+    if not args.no_pyc:
+        ENV.pop("PYTHONDONTWRITEBYTECODE", None)
+    print(f"bytecode cache (.pyc): {'off' if ENV.get('PYTHONDONTWRITEBYTECODE') else 'on'}", flush=True)
     results: dict = {}
     wall([str(BIN / "zennav"), "--help"])
     helps = [wall([str(BIN / "zennav"), "--help"]) for _ in range(args.repeat)]

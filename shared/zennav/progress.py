@@ -7,16 +7,18 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from typing import TextIO
 
 
 class Progress:
-    """update(done_s) with the data seconds processed out of total_s [s of data]."""
+    """update(done_s) with the data seconds processed out of total_s [s of data] (a number, or a function that
+    gives it when the line is first drawn)."""
 
-    def __init__(self, total_s: float, label: str = "", stream: TextIO | None = None, quiet: bool = False,
-                 after_s: float = 2.0, every_s: float = 0.5):
+    def __init__(self, total_s: float | Callable[[], float], label: str = "", stream: TextIO | None = None,
+                 quiet: bool = False, after_s: float = 2.0, every_s: float = 0.5):
         self.stream = stream or sys.stderr
-        self.total_s = max(float(total_s), 1e-9)
+        self._total = total_s
         self.label = label
         self.enabled = not quiet and self.stream.isatty()
         self.after_s, self.every_s = after_s, every_s
@@ -35,6 +37,12 @@ class Progress:
         self.stream.flush()
         self.shown = True
 
+    @property
+    def total_s(self) -> float:
+        if callable(self._total):
+            self._total = self._total()
+        return max(float(self._total), 1e-9)
+
     def line(self, done_s: float, wall_s: float) -> str:
         """The progress text after wall_s seconds with done_s of total_s data seconds processed."""
         frac = min(max(done_s / self.total_s, 0.0), 1.0)
@@ -51,8 +59,9 @@ class Progress:
         """The progress of a replay of ds (zennav.replay.run_replay): pass ``on_epoch`` as its hook."""
         from .replay import run_end_ns
 
-        p = cls((run_end_ns(ds) - int(ds.initial.t_ns)) / 1e9, label, quiet=quiet)
-        p.t0_ns = int(ds.initial.t_ns)
+        t0_ns = int(ds.initial.t_ns)
+        p = cls(lambda: (run_end_ns(ds) - t0_ns) / 1e9, label, quiet=quiet)  # the IMU data's end: when drawn
+        p.t0_ns = t0_ns
         return p
 
     t0_ns = 0

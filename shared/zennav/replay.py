@@ -9,18 +9,18 @@ from __future__ import annotations
 import math
 import os
 import time
-from bisect import bisect_right
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from itertools import repeat
 
 import numpy as np
 
+from .datasets.streamed import StreamedImu
 from .messages.sensor import AID_STREAMS
 from .nav.aid import OdometerSample
 from .nav.navigator import AidReport, Navigator
 from .nav.smoother import Recorder, Smoothed, smooth, smooth_rows
-from .nav.types import NS, Dataset
+from .nav.types import NS, Dataset, ImuData
 
 JIT_MIN_S = 300.0  # run_replay compiles its loop for this much IMU data or more [s] (use_jit)
 LAZY_FIRST = 256  # IMU samples at most that a "lazy" run_replay runs as Python before it loads the compiled loop
@@ -100,25 +100,35 @@ def run_end_ns(ds: Dataset) -> int:
     return int(t_last if ds.config.end_t_ns is None else min(t_last, ds.config.end_t_ns))
 
 
-def sensor_events(
-    ds: Dataset,
-    outages: Sequence[tuple[float, float]] = (),
-    outage_every: tuple[float, float, float] | None = None,
-) -> tuple[list[tuple[int, int]], list[tuple[str, int]]]:
-    """Which IMU samples, GNSS fixes and aid samples (AID_STREAMS) a run feeds the engine, in order: (windows,
-    events), events being (kind, k) indices into ds.imu / ds.gnss / ds.dvl / ds.depth. IMU samples after the
-    initial-state time up to config.end_t_ns; GNSS fixes after the initial time, outside the outage windows, not
-    after the last IMU sample; aid samples likewise, outages or not. A fix or aid sample goes before the first
-    IMU sample at or after its time (in time order; ties: GNSS, DVL, depth): the engine fuses a fix at its time
-    within that IMU sample, an aid sample right after it (held until then). run_replay and the ingest service
-    both take their sequence from here."""
-    t_imu = ds.imu.t_ns
+@dataclass
+class EventPlan:
+    """What a run feeds the engine, in order (sensor_events): the IMU samples k0 .. k1 - 1 of ds.imu and the other
+    events, inserts (k, kind, index): sample ``index`` of ds.<kind> (gnss or an AID_STREAMS kind) before IMU sample
+    k; windows: the outage windows [(start_ns, end_ns)]."""
+
+    windows: list[tuple[int, int]]
+    k0: int
+    k1: int
+    inserts: list[tuple[int, str, int]]
+
+    def events(self) -> list[tuple[str, int]]:
+        """The plan as one list of (kind, index), IMU samples included."""
+        events: list[tuple[str, int]] = []
+        done = self.k0  # IMU samples before this one are in events
+        for k, kind, index in self.inserts:
+            events.extend(zip(repeat("imu"), range(done, k)))
+            done = k
+            events.append((kind, index))
+        events.extend(zip(repeat("imu"), range(done, self.k1)))
+        return events
+
+
+def _inserts(ds: Dataset, t_imu: np.ndarray, k0: int, k1: int, t_end: int,
+             windows: list[tuple[int, int]]) -> list[tuple[int, str, int]]:
+    """EventPlan.inserts: the GNSS fixes outside the windows and the aid samples after the initial-state time, not
+    after t_end [ns], each before the first IMU sample k of t_imu[k0:k1] at or after its time (in time order; ties:
+    GNSS, DVL, depth); those after the last one left out."""
     t0 = int(ds.initial.t_ns)
-    k0 = int(np.searchsorted(t_imu, t0, side="right"))
-    t_last = run_end_ns(ds)
-    k1 = int(np.searchsorted(t_imu, t_last, side="right"))
-    windows = outage_windows(t0, t_last, list(outages), outage_every)
-    t_end = t_imu[k1 - 1] if k1 > k0 else t0
     queued: list[tuple[int, int, int, str, int]] = []  # (IMU position, t_ns, tie rank, kind, index)
     for rank, kind in enumerate(("gnss", *AID_STREAMS)):
         data = getattr(ds, kind)
@@ -133,16 +143,60 @@ def sensor_events(
         before = np.searchsorted(t_imu[k0:k1], t[idx], side="left")  # IMU position of each
         queued += zip(before.tolist(), t[idx].tolist(), [rank] * len(idx), [kind] * len(idx), idx.tolist())
     queued.sort()
-    events: list[tuple[str, int]] = []
-    done = 0  # IMU positions before this one are in events
-    for pos, _, _, kind_q, k_q in queued:  # each before the IMU sample at its position
-        if pos >= k1 - k0:
-            break
-        events.extend(zip(repeat("imu"), range(k0 + done, k0 + pos)))
-        done = max(done, pos)
-        events.append((kind_q, k_q))
-    events.extend(zip(repeat("imu"), range(k0 + done, k1)))
-    return windows, events
+    return [(k0 + pos, kind, index) for pos, _, _, kind, index in queued if pos < k1 - k0]
+
+
+def event_plan(
+    ds: Dataset,
+    outages: Sequence[tuple[float, float]] = (),
+    outage_every: tuple[float, float, float] | None = None,
+) -> EventPlan:
+    """sensor_events' selection as an EventPlan (the IMU samples as a range: no list of them)."""
+    t_imu = ds.imu.t_ns
+    t0 = int(ds.initial.t_ns)
+    k0 = int(np.searchsorted(t_imu, t0, side="right"))
+    t_last = run_end_ns(ds)
+    k1 = int(np.searchsorted(t_imu, t_last, side="right"))
+    windows = outage_windows(t0, t_last, list(outages), outage_every)
+    t_end = int(t_imu[k1 - 1]) if k1 > k0 else t0
+    return EventPlan(windows, k0, k1, _inserts(ds, t_imu, k0, k1, t_end, windows))
+
+
+def head_plan(
+    ds: Dataset,
+    head: ImuData,
+    outages: Sequence[tuple[float, float]] = (),
+    outage_every: tuple[float, float, float] | None = None,
+) -> EventPlan | None:
+    """The start of event_plan(ds) that the first IMU samples (head, a prefix of ds.imu) decide without the rest: its
+    samples before the head's last, before any outage window can start and not after config.end_t_ns, with the
+    events before them (the whole plan's inserts before head_plan.k1, the same); None when there is none."""
+    t_imu = head.t_ns
+    t0 = int(ds.initial.t_ns)
+    t_cut = int(t_imu[-1])  # the whole run goes on after the samples before it (its window clipping too)
+    starts = [start for start, _ in outages] + ([outage_every[2]] if outage_every is not None else [])
+    t_cut = min([t_cut] + [t0 + int(round(s * NS)) for s in starts])
+    if ds.config.end_t_ns is not None:
+        t_cut = min(t_cut, int(ds.config.end_t_ns) + 1)
+    k0 = int(np.searchsorted(t_imu, t0, side="right"))
+    k1 = int(np.searchsorted(t_imu, t_cut, side="left"))
+    return EventPlan([], k0, k1, _inserts(ds, t_imu, k0, k1, t_cut - 1, [])) if k1 > k0 else None
+
+
+def sensor_events(
+    ds: Dataset,
+    outages: Sequence[tuple[float, float]] = (),
+    outage_every: tuple[float, float, float] | None = None,
+) -> tuple[list[tuple[int, int]], list[tuple[str, int]]]:
+    """Which IMU samples, GNSS fixes and aid samples (AID_STREAMS) a run feeds the engine, in order: (windows,
+    events), events being (kind, k) indices into ds.imu / ds.gnss / ds.dvl / ds.depth. IMU samples after the
+    initial-state time up to config.end_t_ns; GNSS fixes after the initial time, outside the outage windows, not
+    after the last IMU sample; aid samples likewise, outages or not. A fix or aid sample goes before the first
+    IMU sample at or after its time (in time order; ties: GNSS, DVL, depth): the engine fuses a fix at its time
+    within that IMU sample, an aid sample right after it (held until then). run_replay (event_plan, the same
+    selection without a list of the IMU samples) and the ingest service both take their sequence from here."""
+    plan = event_plan(ds, outages, outage_every)
+    return plan.windows, plan.events()
 
 
 def run_replay(
@@ -167,133 +221,175 @@ def run_replay(
     time, outages or not, before that epoch's solution (the odometer's first, then the DVL's and depth's in time
     order; zennav.nodes.ins hands the bus's over the same way). A compensator of another target than "drift" runs
     the engine without the drift target's shadow INSs (config.learn_drift: the samples it learns are the same).
+    IMU data still being read (zennav.datasets.streamed.StreamedImu) runs from its head first (head_plan), then the
+    whole is read and the run goes on: the same events, the same floats.
 
     loop: how the IMU samples between two events run: "step" (on_imu, sample by sample), "compiled" (the stretches
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
     tests and debugging), "lazy" (the first stretch as Python, then numba and the compiled kernels load, about a
     second, and the rest runs compiled: the first samples without waiting for numba, the same floats); None: "lazy"
-    where ``use_jit`` says, else "step". The block loop runs only where the
-    run needs no step-wise hand-over (no odometer stream, no smoothing; with a compensator, from one learning event
-    to the next: Navigator.run_imu); epoch_due() (optional) says
-    from which IMU time on_epoch must see the epochs (None: every one); without it on_epoch sees every epoch and the
-    run goes step by step; in the block loop on_epoch also sees the last epoch of each stretch."""
+    where ``use_jit`` says, else "step" (a head runs "step" then, and "python" with "lazy"). The block loop runs only
+    where the run needs no step-wise hand-over (no odometer stream, no smoothing; with a compensator, from one
+    learning event to the next: Navigator.run_imu); epoch_due() (optional) says from which IMU time on_epoch must
+    see the epochs (None: every one); without it on_epoch sees every epoch and the run goes step by step; in the
+    block loop on_epoch also sees the last epoch of each stretch."""
+    if loop not in (None, "step", "compiled", "python", "lazy"):
+        raise ValueError(f"loop: step, compiled, python or lazy, not {loop!r}")
     target = getattr(compensator, "target", None)
     config = ds.config if compensator is None else ds.config.with_(
         learning=True, dvl_learned=target == "dvl_beam", learn_drift=target in (None, "drift"))
     nav = navigator or Navigator(config, ds.initial)
     rec = Recorder() if smoothing else None
     nav.recorder = rec
-    imu, gnss = ds.imu, ds.gnss
-    windows, events = sensor_events(ds, outages, outage_every)
-    streams = aid_streams(ds, nav)
-    kinds = [kind for kind, _ in events]
-    n = kinds.count("imu")
-    t_out = np.empty(n, dtype=np.int64)
-    out = np.empty((n, 10))
-    std = np.empty((n, 3))
-    outage = np.zeros(n, dtype=bool)
-    reports: list[AidReport] = []
-    t_list = imu.t_ns.tolist()
-    aid_data = {kind: getattr(ds, kind) for kind in AID_STREAMS}
-    held: list[tuple[str, int]] = []  # aid samples waiting for the IMU sample that reaches their time
-    if loop is None:
-        loop = "lazy" if use_jit(ds) else "step"
-    if loop not in ("step", "compiled", "python", "lazy"):
-        raise ValueError(f"loop: step, compiled, python or lazy, not {loop!r}")
-    blocks = loop != "step" and not streams and rec is None and (on_epoch is None or epoch_due)
-    jit = loop == "compiled"
-    load_jit = blocks and loop == "lazy"  # numba loads after the first stretch, which runs as Python
-    if blocks:
-        if jit:
-            from .nav.kernels import compiled
-
-            compiled()  # numba loads before the clock starts (start-up, not the loop)
-        block_args = (np.ascontiguousarray(imu.t_ns, dtype=np.int64), np.ascontiguousarray(imu.dtheta, dtype=float),
-                      np.ascontiguousarray(imu.dvel, dtype=float))
-        rows, row_std = np.empty((len(imu), 10)), np.empty((len(imu), 9))
-        others = [j for j, kind in enumerate(kinds) if kind != "imu"] + [len(events)]  # events that are not IMU
-        dtheta, dvel = block_args[1], block_args[2]  # rows of the samples that go step by step
-    else:
-        dtheta, dvel = imu.dtheta.tolist(), imu.dvel.tolist()
-    i = 0
-    e = -1
-    wall0 = time.perf_counter()
-    waited = 0.0  # [s] loading the compiled kernels ("lazy"): start-up, not the loop
-    while e + 1 < len(events):
-        e += 1
-        kind, k = events[e]
-        if kind == "gnss":
-            nav.on_gnss(gnss.fix_at(k))
-            continue
-        if kind != "imu":
-            held.append((kind, k))
-            continue
-        if blocks and not held:
-            due = epoch_due() if epoch_due is not None else None
-            k_last = events[others[bisect_right(others, e)] - 1][1]  # the last IMU sample before the next event
-            if load_jit and i > 0:  # the first samples ran as Python: now the compiled kernels
-                w0 = time.perf_counter()
-                from .nav.kernels import compiled
-
-                compiled()
-                jit, load_jit = True, False
-                waited = time.perf_counter() - w0
-            k_stop = min(k_last + 1, k + LAZY_FIRST) if load_jit else k_last + 1
-            k_end = nav.run_imu(*block_args, k, k_stop, 2**62 if due is None else due, rows, row_std, jit)
-            if k_end > k:
-                n_run = k_end - k
-                t_out[i:i + n_run] = block_args[0][k:k_end]
-                out[i:i + n_run] = rows[k:k_end]
-                std[i:i + n_run] = row_std[k:k_end, :3]
-                outage[i:i + n_run] = nav.gnss_state != "valid"
-                i += n_run
-                e += n_run - 1
-                if on_epoch is not None and (k_end < k_stop or k_stop == k_last + 1):  # not a cut at LAZY_FIRST
-                    on_epoch(nav)
-                continue
-        nav.on_imu(t_list[k], dtheta[k], dvel[k])
-        if streams:
-            streams.feed(nav, t_list[k])
-        for kind_a, k_a in held:
-            nav.on_aid(kind_a, aid_data[kind_a].sample(k_a))
-        held.clear()
-        if compensator is not None:  # answers fused at this sample are in its solution, as the ins publishes it
-            compensator.add(nav.pop_samples())
-            for query in nav.pop_queries():
-                prediction = compensator.predict(query)
-                if prediction is not None:
-                    nav.on_correction(query, *prediction)
-                elif getattr(compensator, "last_refusal", ""):
-                    nav.on_refusal(query, compensator.last_refusal)
-        s = nav.state
-        t_out[i] = nav.t_ns
-        out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)
-        std[i] = nav.std_pos_ned
-        outage[i] = nav.gnss_state != "valid"
-        if rec is not None:
-            rec.mark_row(nav.t_ns)
-        reports.extend(nav.pop_reports())
-        if on_epoch is not None:
-            on_epoch(nav)
-        i += 1
-    wall = time.perf_counter() - wall0 - waited
+    run = _Run(ds, nav, compensator, on_epoch, epoch_due, aid_streams(ds, nav))
+    imu = ds.imu
+    head = head_plan(ds, imu.head, outages, outage_every) if isinstance(imu, StreamedImu) and imu.pending else None
+    if head is not None:  # the samples the head decides, then the rest of the IMU data (loading, not the loop)
+        assert isinstance(imu, StreamedImu)
+        run.start(head, imu.head, "step" if loop is None else "python" if loop == "lazy" else loop)  # numba: after
+        run.advance(head, None)
+        w0 = time.perf_counter()
+        imu.whole()
+        run.waited += time.perf_counter() - w0
+    plan = event_plan(ds, outages, outage_every)  # the whole IMU data from here on
+    if head is not None and (plan.k0, plan.inserts[:len(head.inserts)]) != (head.k0, head.inserts):
+        raise RuntimeError("head_plan is not the start of event_plan")  # a bug, not the data's
+    run.start(plan, ds.imu, loop or ("lazy" if use_jit(ds) else "step"))
+    run.advance(plan, plan.k1)
+    wall = time.perf_counter() - run.wall0 - run.waited
     nav.recorder = None
     res = ReplayResult(
         dataset=ds.name,
-        t_ns=t_out,
-        llh=out[:, 0:3].copy(),
-        v_n=out[:, 3:6].copy(),
-        q_nb=out[:, 6:10].copy(),
-        std_pos_ned=std,
-        outage=outage,
-        windows=windows,
-        reports=reports,
+        t_ns=run.t_out,
+        llh=run.out[:, 0:3].copy(),
+        v_n=run.out[:, 3:6].copy(),
+        q_nb=run.out[:, 6:10].copy(),
+        std_pos_ned=run.std,
+        outage=run.outage,
+        windows=plan.windows,
+        reports=run.reports,
         status=nav.status(),
         wall_s=wall,
     )
     if rec is not None:
         res.smoothing, res.smoothed = smoothed_result(res, rec)
     return res
+
+
+class _Run:
+    """run_replay's loop: the engine fed an EventPlan's events (advance), its solution rows collected; start() sets
+    the IMU data and the plan (a head's, then the whole's: the rows so far kept)."""
+
+    def __init__(self, ds: Dataset, nav: Navigator, compensator, on_epoch: Callable[[Navigator], None] | None,
+                 epoch_due: Callable[[], int | None] | None, streams: AidStreams):
+        self.ds, self.nav, self.compensator, self.on_epoch, self.epoch_due = ds, nav, compensator, on_epoch, epoch_due
+        self.streams = streams
+        self.block_ok = not streams and nav.recorder is None and (on_epoch is None or epoch_due is not None)
+        self.aid_data = {kind: getattr(ds, kind) for kind in AID_STREAMS}
+        self.held: list[tuple[str, int]] = []  # aid samples waiting for the IMU sample that reaches their time
+        self.reports: list[AidReport] = []
+        self.i = 0  # solution rows so far
+        self.k = -1  # the next IMU sample (-1: before start)
+        self.j = 0  # the next insert of the plan
+        self.t_out = np.empty(0, dtype=np.int64)
+        self.out, self.std, self.outage = np.empty((0, 10)), np.empty((0, 3)), np.zeros(0, dtype=bool)
+        self.wall0 = 0.0
+        self.waited = 0.0  # [s] loading the compiled kernels ("lazy") or the rest of the IMU data: not the loop
+
+    def start(self, plan: EventPlan, imu: ImuData, loop: str) -> None:
+        """Run plan over imu from here (the first plan's k0, else where the last one stopped) with ``loop``
+        (run_replay's)."""
+        self.blocks = loop != "step" and self.block_ok
+        self.jit = loop == "compiled"
+        self.load_jit = self.blocks and loop == "lazy"  # numba loads after the first stretch, which runs as Python
+        if self.blocks:
+            if self.jit:
+                from .nav.kernels import compiled
+
+                compiled()  # numba loads before the clock starts (start-up, not the loop)
+            self.block_args = (np.ascontiguousarray(imu.t_ns, dtype=np.int64),
+                               np.ascontiguousarray(imu.dtheta, dtype=float),
+                               np.ascontiguousarray(imu.dvel, dtype=float))
+            self.rows, self.row_std = np.empty((len(imu), 10)), np.empty((len(imu), 9))
+            self.dtheta, self.dvel = self.block_args[1], self.block_args[2]  # rows of the samples that go step by step
+        else:
+            self.dtheta, self.dvel = imu.dtheta.tolist(), imu.dvel.tolist()
+        self.t_list = imu.t_ns.tolist()
+        n, i = plan.k1 - plan.k0, self.i
+        self.t_out = np.concatenate([self.t_out[:i], np.empty(n - i, dtype=np.int64)])
+        self.out = np.concatenate([self.out[:i], np.empty((n - i, 10))])
+        self.std = np.concatenate([self.std[:i], np.empty((n - i, 3))])
+        self.outage = np.concatenate([self.outage[:i], np.zeros(n - i, dtype=bool)])
+        if self.k < 0:
+            self.k = plan.k0
+            self.wall0 = time.perf_counter()
+
+    def advance(self, plan: EventPlan, k_end: int | None) -> None:
+        """Feed the engine the plan's events up to IMU sample k_end (None: plan.k1, a head's end, not a stretch's);
+        the events before IMU sample k_end stay for the next call."""
+        nav, ins, held, on_epoch, compensator = self.nav, plan.inserts, self.held, self.on_epoch, self.compensator
+        gnss, aid_data, streams, t_list = self.ds.gnss, self.aid_data, self.streams, self.t_list
+        t_out, out, std, outage, dtheta, dvel = self.t_out, self.out, self.std, self.outage, self.dtheta, self.dvel
+        k_stop_all = plan.k1 if k_end is None else k_end
+        i, j, k = self.i, self.j, self.k
+        while k < k_stop_all:
+            while j < len(ins) and ins[j][0] == k:  # the events before IMU sample k
+                _, kind, index = ins[j]
+                j += 1
+                if kind == "gnss":
+                    nav.on_gnss(gnss.fix_at(index))
+                else:
+                    held.append((kind, index))
+            due = None if not self.blocks or held else 2**62 if self.epoch_due is None else self.epoch_due()
+            if due is not None:  # (epoch_due() None: on_epoch sees every epoch, step by step)
+                k_next = ins[j][0] if j < len(ins) else k_end  # the next event's IMU sample (None: not known)
+                if self.load_jit and i > 0:  # the first samples ran as Python: now the compiled kernels
+                    w0 = time.perf_counter()
+                    from .nav.kernels import compiled
+
+                    compiled()
+                    self.jit, self.load_jit = True, False
+                    self.waited += time.perf_counter() - w0
+                k_stop = min(k_stop_all if k_next is None else k_next, k + LAZY_FIRST if self.load_jit else k_stop_all)
+                k_run = nav.run_imu(*self.block_args, k, k_stop, due, self.rows, self.row_std, self.jit)
+                if k_run > k:
+                    n_run = k_run - k
+                    t_out[i:i + n_run] = self.block_args[0][k:k_run]
+                    out[i:i + n_run] = self.rows[k:k_run]
+                    std[i:i + n_run] = self.row_std[k:k_run, :3]
+                    outage[i:i + n_run] = nav.gnss_state != "valid"
+                    i += n_run
+                    k = k_run
+                    if on_epoch is not None and (k_run < k_stop or k_stop == k_next):  # not a cut (LAZY_FIRST, head)
+                        on_epoch(nav)
+                    continue
+            nav.on_imu(t_list[k], dtheta[k], dvel[k])
+            if streams:
+                streams.feed(nav, t_list[k])
+            for kind_a, k_a in held:
+                nav.on_aid(kind_a, aid_data[kind_a].sample(k_a))
+            held.clear()
+            if compensator is not None:  # answers fused at this sample are in its solution, as the ins publishes it
+                compensator.add(nav.pop_samples())
+                for query in nav.pop_queries():
+                    prediction = compensator.predict(query)
+                    if prediction is not None:
+                        nav.on_correction(query, *prediction)
+                    elif getattr(compensator, "last_refusal", ""):
+                        nav.on_refusal(query, compensator.last_refusal)
+            s = nav.state
+            t_out[i] = nav.t_ns
+            out[i] = (s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3)
+            std[i] = nav.std_pos_ned
+            outage[i] = nav.gnss_state != "valid"
+            if nav.recorder is not None:
+                nav.recorder.mark_row(nav.t_ns)
+            self.reports.extend(nav.pop_reports())
+            if on_epoch is not None:
+                on_epoch(nav)
+            i += 1
+            k += 1
+        self.i, self.j, self.k = i, j, k
 
 
 def use_jit(ds: Dataset) -> bool:

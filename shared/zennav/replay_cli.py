@@ -59,19 +59,17 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     from .run_outputs import RunRecorder
 
     try:
-        ds = load_dataset(spec, defer_truth=True, **(options or {}))  # read after the run: start-up time
+        # the truth read after the run, a long IMU file while it starts (zennav.datasets.streamed): start-up time
+        ds = load_dataset(spec, defer_truth=True, stream_imu=True, **(options or {}))
         if odometer is not None:
             ds.odometer = load_kfgins_odometer(odometer)
         # the ins's filter on the dataset's sensors
         ds.config = nav_config(ds.config, filter_settings(spec, params, profile, constraints))
     except (DataError, ParamError) as e:
         raise click.ClickException(str(e)) from None
+    shown = len(ds.notes.get("remarks") or [])
     for remark in ds.notes.get("remarks") or []:  # what a loader changed or left out (KF-GINS configurations)
         click.echo(f"note: {remark}", err=True)
-    run_s = (int(ds.imu.t_ns[-1]) - int(ds.imu.t_ns[0])) / 1e9  # outage times count from the first IMU sample
-    for start, duration in outages:
-        if start >= run_s:
-            click.echo(f"note: outage {start:g}:{duration:g} starts after the run's {run_s:.1f} s: none", err=True)
     kf_gins = ds.notes.get("format") == "KF-GINS"
     if out is None and kf_gins:  # as KF-GINS: into the configuration's outputpath
         out = Path(ds.notes["outputpath"])
@@ -97,9 +95,19 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         from .learn.loop import make_compensator
 
         compensator = make_compensator(compensation, target, seed)
-    res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
-                     smoothing=smooth, epoch_due=recorder.due_ns)
-    progress.close()
+    try:  # a long IMU file is read while the run starts (zennav.datasets.streamed): its defects show here
+        res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
+                         smoothing=smooth, epoch_due=recorder.due_ns)
+    except DataError as e:
+        raise click.ClickException(str(e)) from None
+    finally:
+        progress.close()
+    for remark in (ds.notes.get("remarks") or [])[shown:]:  # on the part read while the run started
+        click.echo(f"note: {remark}", err=True)
+    run_s = (int(ds.imu.t_ns[-1]) - int(ds.imu.t_ns[0])) / 1e9  # outage times count from the first IMU sample
+    for start, duration in outages:
+        if start >= run_s:
+            click.echo(f"note: outage {start:g}:{duration:g} starts after the run's {run_s:.1f} s: none", err=True)
     if "truth_file" in ds.notes:  # a KF-GINS truth file, read after the run
         from .datasets.kfgins import load_deferred_truth
 

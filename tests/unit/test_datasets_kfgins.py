@@ -147,7 +147,7 @@ def test_config_units_converted_to_si(tmp_path, monkeypatch):
     np.testing.assert_allclose(ds.config.lever_arm_b, [0.136, -0.301, -0.184])
     # window: IMU from starttime on, GNSS strictly after it; initial state at the first IMU sample
     assert ds.imu.t_ns[0] == init.t_ns == ds.config.start_t_ns == int(SOW0 * NS)
-    assert len(ds.imu) == 10 and ds.config.end_t_ns == ds.imu.t_ns[-1]
+    assert len(ds.imu) == 10 and ds.config.end_t_ns is None  # endtime -1: to the last IMU sample
     np.testing.assert_array_equal(ds.gnss.t_ns, [int((SOW0 + 0.02) * NS), int((SOW0 + 0.04) * NS)])
     assert ds.notes["imu_rate_hz"] == 200
     # scale factors [ppm -> -]: KF-GINS's 21-state model (without initsgstd/initsastd their std is gsstd/asstd)
@@ -168,6 +168,7 @@ def test_config_options_window_and_cwd_first(tmp_path, monkeypatch):
     monkeypatch.chdir(other)
     ds = kfgins.load_config(path)
     assert len(ds.imu) == 3 and (ds.imu.dvel[:, 2] == -0.098).all()
+    assert ds.config.end_t_ns == int(round((SOW0 + 0.02) * 1e9))  # endtime
     assert len(ds.gnss) == 1  # (starttime, endtime]
     np.testing.assert_allclose(ds.initial.std_gyro_bias, np.full(3, math.radians(1) / 3600), rtol=1e-15)
     np.testing.assert_allclose(ds.initial.std_accel_bias, np.full(3, 50e-5), rtol=1e-15)

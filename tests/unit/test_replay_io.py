@@ -9,7 +9,7 @@ import gzip
 import numpy as np
 import pytest
 
-from zennav.datasets import kfgins
+from zennav.datasets import fasttext, kfgins
 from zennav.datasets.errors import read_table
 from zennav.datasets.fasttext import read_floats, table_text
 from zennav.replay import run_replay
@@ -25,11 +25,13 @@ def _values(seed: int, n: int) -> np.ndarray:
     return np.concatenate([wide, ties, [0.0, -0.0, 0.5, -2.5, 1e15 + 0.5, 123.0]])
 
 
-def test_plain_tables_parse_to_the_loadtxt_floats(tmp_path):
+def test_plain_tables_parse_to_the_loadtxt_floats(tmp_path, monkeypatch):
     v = _values(1, 3000).reshape(-1, 6)
     path = tmp_path / "t.txt"
     lines = [" ".join(f"{x:.17g}" if k % 2 else f"{x:.16e}" for x in row) for k, row in enumerate(v)]
     path.write_text("# a comment line\n" + "\n".join(lines) + "\n")
+    assert read_floats(path, {6}) is None  # under MIN_BYTES: np.loadtxt's, polars not imported for it
+    monkeypatch.setattr(fasttext, "MIN_BYTES", 0)
     got = read_floats(path, {6})
     assert got is not None and got.flags.c_contiguous
     assert np.array_equal(got, np.loadtxt(path, ndmin=2)) and np.array_equal(got, v)
@@ -41,7 +43,8 @@ def test_plain_tables_parse_to_the_loadtxt_floats(tmp_path):
 
 @pytest.mark.parametrize("text", ["1 2 3\n\n4 5 6\n", "1  2 3\n4 5 6\n", "1 2 3 # x\n4 5 6\n", "1\t2 3\n4 5 6\n",
                                   " 1 2 3\n4 5 6\n", "1 2 3 \n4 5 6\n"])
-def test_irregular_tables_go_to_the_checked_reader(tmp_path, text):
+def test_irregular_tables_go_to_the_checked_reader(tmp_path, monkeypatch, text):
+    monkeypatch.setattr(fasttext, "MIN_BYTES", 0)
     path = tmp_path / "t.txt"
     path.write_text(text)
     assert read_floats(path, {3}) is None
@@ -87,3 +90,13 @@ def test_block_loop_that_loads_numba_after_its_first_stretch_gives_the_python_fl
                  (a.outage, b.outage)):
         assert np.array_equal(x, y)
     assert a.status["counters"] == b.status["counters"]
+
+
+def test_an_epoch_hook_that_wants_every_epoch_sees_every_epoch():
+    """epoch_due() None (an MCAP recording): on_epoch sees every epoch in any loop, the block loop's too."""
+    ds = make_dataset("car", duration_s=5.0, seed=5)
+    seen: dict[str, list[int]] = {"step": [], "python": []}
+    for loop, times in seen.items():
+        res = run_replay(ds, loop=loop, on_epoch=lambda nav, times=times: times.append(nav.t_ns),
+                         epoch_due=lambda: None)
+        assert times == res.t_ns.tolist()

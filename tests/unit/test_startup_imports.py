@@ -38,3 +38,17 @@ def test_the_services_engine_and_the_cli_do_not_import_numba():
             "from zennav.replay import run_replay\nrun_replay(make_dataset('car', duration_s=5.0), loop='step')")
     assert _modules_after(code, ("numba", "llvmlite")) == []
     assert _modules_after(code.replace("loop='step'", "loop='compiled'"), ("numba",)) == ["numba"]  # the check sees it
+
+
+def test_a_long_kfgins_file_starts_without_polars(tmp_path):
+    """A KF-GINS configuration with a long IMU file: loaded as `zennav replay` does (its IMU head, the GNSS files, the
+    truth left for after the run) without polars; polars (about 0.3 s to import) reads the rest of the IMU file,
+    over zennav.datasets.fasttext.MIN_BYTES, when it is used."""
+    from zennav.datasets import kfgins
+    from zennav.sim.scenarios import make_dataset
+
+    yaml_path = kfgins.write_dataset(make_dataset("car", duration_s=40.0, seed=1), tmp_path)
+    code = (f"from zennav.datasets.registry import load_dataset\n"
+            f"ds = load_dataset({str(yaml_path)!r}, defer_truth=True, stream_imu=True)")
+    assert _modules_after(code, ("polars", "zennav.datasets.streamed")) == ["zennav.datasets.streamed"]
+    assert _modules_after(code + "\nds.imu.t_ns", ("polars",)) == ["polars"]  # the check sees it

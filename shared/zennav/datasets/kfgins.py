@@ -24,8 +24,9 @@ from typing import Literal, overload
 import numpy as np
 import yaml
 
-from zennav.datasets.errors import DataError, read_table, read_text
+from zennav.datasets.errors import DataError, Table, read_table, read_table_head, read_text
 from zennav.datasets.fasttext import table_text
+from zennav.datasets.streamed import StreamedImu
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
 from zennav.yamlfile import load_with_nodes
@@ -37,6 +38,7 @@ DEG_PER_H = D2R / 3600.0  # [rad/s]
 PPM = 1e-6  # scale factor [-]
 SQRT_H = 60.0  # sqrt(3600 s)
 TRUTH_FIELDS = ("pos", "vel", "att")
+IMU_HEAD_BYTES = 1 << 18  # [bytes] of an IMU file parsed before a replay starts (the rest on first use: StreamedImu)
 
 
 def _t_ns(seconds) -> np.ndarray:
@@ -60,11 +62,12 @@ def _require_positive(table, values: np.ndarray, what: str) -> None:
         raise table.error(int(bad[0]), f"{what} must be positive")
 
 
-def _timed_table(path, columns, time_col: int = 0, remarks: list[str] | None = None):
+def _timed_table(path, columns, time_col: int = 0, remarks: list[str] | None = None, table: Table | None = None):
     """A finite table whose column ``time_col`` (sow [s]) increases; returns (table, t_ns, keep). Without remarks a
     time not after the previous row's is a DataError; with remarks such rows (a duplicated or out-of-order record)
-    are left out of keep (bool (N,): the rows to use), and a remark counts them."""
-    table = read_table(path, columns, commas_as_space=True)
+    are left out of keep (bool (N,): the rows to use), and a remark counts them. table: the file's rows already
+    read (else read here)."""
+    table = table or read_table(path, columns, commas_as_space=True)
     table.require_finite()
     t_ns = _t_ns(table.data[:, time_col])
     if remarks is None:
@@ -79,10 +82,22 @@ def _timed_table(path, columns, time_col: int = 0, remarks: list[str] | None = N
     return table, t_ns, keep
 
 
-def load_imu(path, columns: int = 7, remarks: list[str] | None = None) -> ImuData:
+def load_imu(path, columns: int = 7, remarks: list[str] | None = None, head_bytes: int = 0) -> ImuData:
     """KF-GINS IMU file (``columns`` = imudatalen) -> ImuData (t_ns in seconds of week, FRD increments). remarks:
-    leave duplicated and out-of-order rows out and say so there (else they are a DataError)."""
-    table, t_ns, keep = _timed_table(path, columns, remarks=remarks)
+    leave duplicated and out-of-order rows out and say so there (else they are a DataError). head_bytes > 0: a file
+    longer than that comes as a StreamedImu, its head the complete lines within the first head_bytes (a replay
+    starts on them), the rest read on first use."""
+    if head_bytes > 0:
+        head = read_table_head(path, columns, head_bytes, commas_as_space=True)
+        if head is not None:  # the head's remarks are the whole's, made when it is read
+            return StreamedImu(_imu_rows(path, columns, None if remarks is None else [], head),
+                               partial(load_imu, path, columns, remarks), str(path))
+    return _imu_rows(path, columns, remarks)
+
+
+def _imu_rows(path, columns: int, remarks: list[str] | None, table: Table | None = None) -> ImuData:
+    """load_imu of the file's rows (table: those already read, else all)."""
+    table, t_ns, keep = _timed_table(path, columns, remarks=remarks, table=table)
     d = table.data[keep]
     return ImuData(t_ns[keep], d[:, 1:4].copy(), d[:, 4:7].copy())
 
@@ -399,9 +414,12 @@ class _Config:
         return [Path.cwd(), self.path.parent, self.path.parent.parent]
 
 
-def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
+def load_config(yaml_path, defer_truth: bool = False, stream_imu: bool = False) -> Dataset:
     """KF-GINS YAML configuration -> Dataset, everything converted once to SI. defer_truth: leave the truth file
     (as large as the IMU file) unread, described in notes["truth_file"], for load_deferred_truth after the run.
+    stream_imu: an IMU file longer than IMU_HEAD_BYTES comes as a StreamedImu (zennav replay: the run starts on its
+    head; the rest, its defects and remarks when it is first used; the GNSS epochs after its last sample left out
+    then).
 
     KF-GINS units: initpos [deg, deg, m], initatt/initattstd [deg], initgyrbias/initbgstd/gbstd [deg/h],
     initaccbias/initbastd/abstd [mGal], initgyrscale/initaccscale/initsgstd/initsastd/gsstd/asstd [ppm], arw
@@ -410,7 +428,8 @@ def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
     turns that off); absent or zero ones leave it at 15 states. zennav extensions: gnssvelpath,
     truthpath (.nav), truthinfo {fields, source, at_antenna}, imunoise.acccorrtime [h].
     The time window keeps IMU samples in [starttime, endtime] and GNSS epochs in (starttime, endtime], as KF-GINS;
-    the initial state is at the first IMU sample of the window.
+    the initial state is at the first IMU sample of the window; config.end_t_ns is endtime (None for -1: to the last
+    sample).
     """
     yaml_path = Path(yaml_path)
     cfg = _Config(yaml_path)
@@ -475,18 +494,28 @@ def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
     imu_path, gnss_path = cfg.file("imupath"), cfg.file("gnsspath")
     vel_path, truth_path = cfg.file("gnssvelpath", required=False), cfg.file("truthpath", required=False)
 
-    imu = load_imu(imu_path, int(columns), remarks=cfg.notes)
+    raw = load_imu(imu_path, int(columns), remarks=cfg.notes, head_bytes=IMU_HEAD_BYTES if stream_imu else 0)
     gnss = load_gnss(gnss_path, vel_path, remarks=cfg.notes)
-    end_ns = int(imu.t_ns[-1]) if endtime < 0 else int(_t_ns(endtime))
-    if start_ns < imu.t_ns[0]:
-        raise cfg.error(("starttime",), f"{start_ns / NS:.9f} s is before the first IMU time {imu.t_ns[0] / NS:.9f} s")
-    keep = (imu.t_ns >= start_ns) & (imu.t_ns <= end_ns)
-    if keep.sum() < 2:
-        raise cfg.error(("starttime",), "fewer than two IMU samples between starttime and endtime")
-    imu = imu.slice(keep)
-    gnss = gnss.slice((gnss.t_ns > start_ns) & (gnss.t_ns <= end_ns))
-    initial = initial_at(t_ns=int(imu.t_ns[0]))
-    config = NavConfig(imu_noise=noise, lever_arm_b=lever_arm_b, start_t_ns=initial.t_ns, end_t_ns=int(imu.t_ns[-1]))
+    end_ns = None if endtime < 0 else int(_t_ns(endtime))
+
+    def trim_gnss(imu_whole: ImuData) -> None:  # endtime -1: the GNSS epochs up to the last IMU sample
+        ds.gnss = ds.gnss.slice(ds.gnss.t_ns <= imu_whole.t_ns[-1])
+
+    imu: ImuData
+    if isinstance(raw, StreamedImu) and np.count_nonzero(_window_keep(raw.head.t_ns, start_ns, end_ns)) >= 2:
+        imu = StreamedImu(_in_window(cfg, raw.head, start_ns, end_ns),
+                          lambda: _in_window(cfg, raw.whole(), start_ns, end_ns), raw.source,
+                          trim_gnss if end_ns is None else None)
+        first_ns = int(imu.head.t_ns[0])
+    else:  # the whole now
+        imu = _in_window(cfg, raw, start_ns, end_ns)
+        first_ns = int(imu.t_ns[0])
+    gnss_keep = gnss.t_ns > start_ns
+    if end_ns is not None or not isinstance(imu, StreamedImu):  # else trim_gnss, once the last IMU time is known
+        gnss_keep &= gnss.t_ns <= (imu.t_ns[-1] if end_ns is None else end_ns)
+    gnss = gnss.slice(gnss_keep)
+    initial = initial_at(t_ns=first_ns)
+    config = NavConfig(imu_noise=noise, lever_arm_b=lever_arm_b, start_t_ns=initial.t_ns, end_t_ns=end_ns)
     truth = None
     truth_file = {"path": str(truth_path), "source": str(info.get("source", "")), "fields": list(fields),
                   "at_antenna": bool(info.get("at_antenna", False))}
@@ -503,7 +532,25 @@ def load_config(yaml_path, defer_truth: bool = False) -> Dataset:
     }
     if truth_path is not None and defer_truth:
         notes["truth_file"] = truth_file
-    return Dataset(yaml_path.stem, imu, gnss, config, initial, truth, notes)
+    ds = Dataset(yaml_path.stem, imu, gnss, config, initial, truth, notes)
+    return ds
+
+
+def _window_keep(t_ns: np.ndarray, start_ns: int, end_ns: int | None) -> np.ndarray:
+    """Which of the IMU times t_ns [ns] are in [start_ns, end_ns] (end None: to the last)."""
+    keep = t_ns >= start_ns
+    return keep if end_ns is None else keep & (t_ns <= end_ns)
+
+
+def _in_window(cfg: _Config, imu: ImuData, start_ns: int, end_ns: int | None) -> ImuData:
+    """The IMU samples in the configuration's time window [start_ns, end_ns] (end None: to the last); a DataError for
+    a start before the first sample or fewer than two samples in it."""
+    if start_ns < imu.t_ns[0]:
+        raise cfg.error(("starttime",), f"{start_ns / NS:.9f} s is before the first IMU time {imu.t_ns[0] / NS:.9f} s")
+    keep = _window_keep(imu.t_ns, start_ns, end_ns)
+    if keep.sum() < 2:
+        raise cfg.error(("starttime",), "fewer than two IMU samples between starttime and endtime")
+    return imu.slice(keep)
 
 
 def load_deferred_truth(ds: Dataset) -> None:

@@ -153,7 +153,7 @@ def parse_loader_options(items) -> dict:
     return out
 
 
-def load_dataset(spec: str, defer_truth: bool = False, **options) -> Dataset:
+def load_dataset(spec: str, defer_truth: bool = False, stream_imu: bool = False, **options) -> Dataset:
     """Load a dataset from ``spec``: one of ACCEPTED. ``options`` go to the loader (e.g. prefilter="none"); a wrong
     one is a DataError. defer_truth: a KF-GINS configuration's truth file is left unread (kfgins.load_deferred_truth
     reads it)."""
@@ -181,8 +181,8 @@ def load_dataset(spec: str, defer_truth: bool = False, **options) -> Dataset:
     elif Path(spec).suffix.lower() in (".yaml", ".yml"):
         from zennav.datasets import kfgins
 
-        load = partial(kfgins.load_config, Path(spec), defer_truth=defer_truth)
-        return _call_loader(spec, load, _option_names(load, skip=("defer_truth",)), options)
+        load = partial(kfgins.load_config, Path(spec), defer_truth=defer_truth, stream_imu=stream_imu)
+        return _call_loader(spec, load, _option_names(load, skip=("defer_truth", "stream_imu")), options)
     elif Path(spec).is_dir():
         load = _folder_loader(Path(spec))
     else:
