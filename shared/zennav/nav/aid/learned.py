@@ -155,16 +155,17 @@ class LearnedSource(AidSource):
                 return False
         R = np.diag(var[rows])
         if self.matching is not None:
-            R = self._matched(nav, z, H, var, rows)
+            R = self._matched(nav, self.matching, z, H, var, rows)
         return nav.update(self, Measurement(query.t_ns, value, z[rows], H[rows], R))
 
-    def _matched(self, nav, z: np.ndarray, H: np.ndarray, var: np.ndarray, rows: list[int]) -> np.ndarray:
-        """The diagonal R [(m/s)^2] of the fused rows from their adaptive-R estimators (the consistency rule of the
-        module docstring): each row's innovation z [m/s] against H P H' and its answered variance var; counted
-        {name}_deweighted when a row's R is above the answered one."""
+    def _matched(self, nav, matching: list[AdaptiveR], z: np.ndarray, H: np.ndarray, var: np.ndarray,
+                 rows: list[int]) -> np.ndarray:
+        """The diagonal R [(m/s)^2] of the fused rows from their adaptive-R estimators matching (one per output; the
+        consistency rule of the module docstring): each row's innovation z [m/s] against H P H' and its answered
+        variance var; counted {name}_deweighted when a row's R is above the answered one."""
         Hn = np.hstack([H, np.zeros((3, nav.n_states - H.shape[1]))]) if H.shape[1] < nav.n_states else H
-        R = np.array([self.matching[r].update(z[r:r + 1], Hn[r:r + 1] @ nav.kf.P @ Hn[r:r + 1].T,
-                                              np.array([[var[r]]]))[0, 0] for r in rows])
+        R = np.array([matching[r].update(z[r:r + 1], Hn[r:r + 1] @ nav.kf.P @ Hn[r:r + 1].T,
+                                         np.array([[var[r]]]))[0, 0] for r in rows])
         if np.any(R > var[rows] * (1.0 + 1e-9)):
             nav.counters[f"{self.name}_deweighted"] += 1
         return np.diag(R)
