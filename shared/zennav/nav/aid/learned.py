@@ -34,7 +34,12 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
     (zennav.nav.aid.base.correlated_variance of nhc_std_mps over BODY_EVERY_S with nhc_corr_s), so that a model
     that claims to know the sideslip better than the constraint does not override it (its lateral output was
     seen overconfident, (error / sigma)^2 of 2.4-27 on the rtklibexplorer drive).
-  * consistency with the constrained filter (learn_consistency): each output's R is estimated from its own
+  Measured there with both (f 0.5) on NHC + ZUPT with the constraint's correlated noise (benchmarks/constraints.py
+  --held-fraction 0.5 --nhc-floor; RMS of the per-window maximum drift, median of seeds 0-2): 30 s windows,
+  ANFIS 9.42 m and Elman 7.87 m against 7.14 m without learning; 60 s, 24.05 and 26.59 m against 25.96 m. ANFIS
+  seed 0 at 30 s: 10.26 m without the two rules, 7.53 m with them. The learned forward speed stays 3.3-6.2 m/s RMS
+  off (its answers against the truth); neither rule makes the learned rows lower at 30 s, so both stay off.
+  A third rule, consistency with the constrained filter (learn_consistency): each output's R is estimated from its own
     innovations against the filter (predicted minus answered, over the answers of the outages: answers are fused
     only without GNSS) by the engine's adaptive-R estimator (zennav.nav.adaptive_r, one of dimension 1 per output:
     the innovation-based covariance matching of Mehra 1972 and Mohamed and Schwarz 1999, the Sage-Husa fading
@@ -44,14 +49,14 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
     agrees keeps its answered 1-sigma; counted learned_body_velocity_deweighted. The same innovation test the
     engine applies to GNSS (adaptive_r), here per output, so that a bad forward speed does not take the lateral
     output's weight with it. Measured there with the two rules above (benchmarks/constraints.py --held-fraction 0.5
-    --nhc-floor --consistency; median of seeds 0-2, RMS of the per-window maximum): 30 s windows, ANFIS 9.42 ->
-    7.73 m and Elman 7.87 -> 6.74 m (NHC + ZUPT 7.14 m); 60 s, ANFIS 24.05 -> 23.16 m and Elman 26.59 -> 18.37 m
-    (NHC + ZUPT 25.96 m).
-  Measured there with both (f 0.5) on NHC + ZUPT with the constraint's correlated noise (benchmarks/constraints.py
-  --held-fraction 0.5 --nhc-floor; RMS of the per-window maximum drift, median of seeds 0-2): 30 s windows,
-  ANFIS 9.42 m and Elman 7.87 m against 7.14 m without learning; 60 s, 24.05 and 26.59 m against 25.96 m. ANFIS
-  seed 0 at 30 s: 10.26 m without the two rules, 7.53 m with them. The learned forward speed stays 3.3-6.2 m/s RMS
-  off (its answers against the truth); neither rule makes the learned rows lower at 30 s, so both stay off.
+    --nhc-floor --consistency; median of seeds 0-2, RMS of the per-window maximum, without -> with it): 10 s
+    windows, ANFIS 1.35 -> 1.27 m and Elman 1.19 -> 1.19 m (NHC + ZUPT 1.22 m); 30 s, ANFIS 9.42 -> 7.73 m and
+    Elman 7.87 -> 6.74 m (7.14 m); 60 s, ANFIS 24.05 -> 23.16 m and Elman 26.59 -> 18.37 m (25.96 m): Elman lower
+    than NHC + ZUPT at all three, ANFIS at 60 s only. Alone (--consistency), 30 s: ANFIS 7.32 m, Elman 7.07 m. The
+    forward answers stay 2.3-8 m/s RMS off the truth (ANFIS seed 0 in the worst 30 s window: answered 1-sigma
+    9.1 m/s, the filter's own forward speed 2.2 m/s off at its end), so they weigh little there; at 10 and 30 s
+    the differences are within the spread of the seeds (30 s: ANFIS 7.21-8.52 m, Elman 6.42-7.20 m), at 60 s
+    Elman's is not (15.41-18.69 m). All three stay off by default (NavConfig).
 
 An answer is fused only if no GNSS position fix was fused after its query's time (else learned_stale: the filter
 already knows better) and the query is at most NavConfig.learn_answer_max_age_s of data time old (else
