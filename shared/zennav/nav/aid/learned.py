@@ -52,7 +52,8 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
     --nhc-floor --consistency; median of seeds 0-2, RMS of the per-window maximum, without -> with it): 10 s
     windows, ANFIS 1.35 -> 1.27 m and Elman 1.19 -> 1.19 m (NHC + ZUPT 1.22 m); 30 s, ANFIS 9.42 -> 7.73 m and
     Elman 7.87 -> 6.74 m (7.14 m); 60 s, ANFIS 24.05 -> 23.16 m and Elman 26.59 -> 18.37 m (25.96 m): Elman lower
-    than NHC + ZUPT at all three, ANFIS at 60 s only. Alone (--consistency), 30 s: ANFIS 7.32 m, Elman 7.07 m. The
+    than NHC + ZUPT at all three, ANFIS at 60 s only. Alone (--consistency): 10 s, ANFIS 1.31 m,
+    Elman 1.21 m; 30 s, 7.32 and 7.07 m; 60 s, 20.84 and 21.71 m. The
     forward answers stay 2.3-8 m/s RMS off the truth (ANFIS seed 0 in the worst 30 s window: answered 1-sigma
     9.1 m/s, the filter's own forward speed 2.2 m/s off at its end), so they weigh little there; at 10 and 30 s
     the differences are within the spread of the seeds (30 s: ANFIS 7.21-8.52 m, Elman 6.42-7.20 m), at 60 s
