@@ -9,7 +9,8 @@ NHC+ZUPT with learned compensation (anfis, elman; each for --seeds, and their me
 learned body velocity gives the forward speed alone, NavConfig.learn_forward_only; with --where-better an output
 is fused only where its 1-sigma is below the filter's, NavConfig.learn_where_better; --held-fraction F: that part of
 each answer's variance is a bias held through the outage, NavConfig.learn_held_fraction; --nhc-floor: the lateral
-and vertical 1-sigma at least the constraint's, NavConfig.learn_nhc_floor). Under each learned run, its
+and vertical 1-sigma at least the constraint's, NavConfig.learn_nhc_floor; --consistency: each output's R from its
+innovations against the filter, NavConfig.learn_consistency). Under each learned run, its
 answers against the truth: the RMS error of the answered body velocity (forward, right, down) [m/s] against the
 true velocity in the solution's body frame at the query time, and the mean of (error / answered 1-sigma)^2 per
 output (about 1 for an honest 1-sigma, above 1: the filter weighs the answer too much). --per-window: each row's
@@ -21,7 +22,7 @@ odometer (scale-factor state estimated), and the scale factor's final estimate.
 
     .venv/bin/python benchmarks/constraints.py [--windows 10,30,60] [--seeds 0,1,2] [--jobs 2] [--no-learned]
         [--datasets rtklibexplorer,sim:car] [--forward-only] [--where-better] [--held-fraction F] [--nhc-floor]
-        [--per-window]
+        [--consistency] [--per-window]
 """
 from __future__ import annotations
 
@@ -165,6 +166,8 @@ def main() -> None:
                          " (learn_held_fraction)")
     ap.add_argument("--nhc-floor", action="store_true",
                     help="learned rows: lateral and vertical 1-sigma at least the constraint's (learn_nhc_floor)")
+    ap.add_argument("--consistency", action="store_true",
+                    help="learned rows: each output's R from its innovations against the filter (learn_consistency)")
     ap.add_argument("--per-window", action="store_true", help="print each row's per-window maxima")
     args = ap.parse_args()
     lengths = [float(x) for x in args.windows.split(",")]
@@ -172,7 +175,8 @@ def main() -> None:
     specs = args.datasets.split(",")
     options = tuple((name, value) for name, value in (
         ("learn_forward_only", args.forward_only), ("learn_where_better", args.where_better),
-        ("learn_held_fraction", args.held_fraction), ("learn_nhc_floor", args.nhc_floor)) if value)
+        ("learn_held_fraction", args.held_fraction), ("learn_nhc_floor", args.nhc_floor),
+        ("learn_consistency", args.consistency)) if value)
     jobs: list[tuple] = []
     for length in lengths:
         if "rtklibexplorer" in specs:

@@ -97,6 +97,8 @@ FILTER: dict[str, Param] = {
     "learn_where_better": Param("learning", "", "bool"),
     "learn_held_fraction": Param("learning", ""),
     "learn_nhc_floor": Param("learning", "", "bool"),
+    "learn_consistency": Param("learning", "", "bool"),
+    "learn_consistency_window": Param("learning", "", "int"),
     "dvl_answer_timeout_s": Param("learning", "s"),
     "dvl_anomaly_k_sigma": Param("learning", ""),
     "dvl_anomaly_probability": Param("learning", ""),

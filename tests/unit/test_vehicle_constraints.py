@@ -330,3 +330,36 @@ def test_learned_lateral_sigma_is_floored_at_the_nhc_under_the_constraint(car):
         lateral[nhc_floor] = float((nav.state.C_nb.T @ nav.state.v_n - v_b0)[1])
     assert 0.0 < lateral[True] < 0.5
     np.testing.assert_allclose(lateral[True], lateral[False], rtol=1e-9)
+
+
+def test_learned_consistency_deweights_answers_that_scatter_beyond_their_sigma(car):
+    """With learn_consistency, answers that scatter 4x beyond their claimed 1-sigma (seeded) are fused with an R
+    grown from their innovations (counted learned_body_velocity_deweighted): the filter's body-velocity error
+    ends consistent with its covariance (normalised error squared, 3 expected) less than 0.7 times as far off as
+    with the claimed R (about 11 against 22); answers as good as they claim keep their R (within a factor 2) and the
+    estimator's state survives a round trip."""
+    from zennav.nav.learning import LearnQuery
+
+    err, R_end, counted = {}, {}, {}
+    for consistency, scatter in ((False, 4.0), (True, 4.0), (True, 1.0)):
+        rng = np.random.default_rng(7)
+        nav = Navigator(car.config.with_(learning=True, learn_consistency=consistency), car.initial)
+        v_b0 = nav.state.C_nb.T @ nav.state.v_n
+        sigma = float(nav.std_v_n.max())
+        query = LearnQuery(nav.t_ns, "body_velocity", np.zeros(12), 1.0)
+        for _ in range(20):
+            nav.on_correction(query, v_b0 + scatter * sigma * rng.standard_normal(3), np.full(3, sigma))
+        e_b = nav.state.C_nb.T @ nav.state.v_n - v_b0
+        C_bn = nav.state.C_nb.T
+        err[(consistency, scatter)] = float(e_b @ np.linalg.solve(C_bn @ nav.kf.P[VEL, VEL] @ C_bn.T, e_b))
+        R_end[(consistency, scatter)] = float(nav.sources["learned_body_velocity"].R_used[0, 0]) / sigma**2
+        counted[(consistency, scatter)] = nav.counters["learned_body_velocity_deweighted"]
+    assert counted[(True, 4.0)] > 0 and counted[(False, 4.0)] == 0
+    assert R_end[(True, 4.0)] > 4.0 and R_end[(False, 4.0)] == pytest.approx(1.0)
+    assert err[(True, 4.0)] < 0.7 * err[(False, 4.0)], err
+    assert R_end[(True, 1.0)] < 2.0, R_end
+    src = nav.sources["learned_body_velocity"]
+    state = msgpack.unpackb(msgpack.packb(src.get_state()))
+    fresh = Navigator(car.config.with_(learning=True, learn_consistency=True), car.initial).sources[src.name]
+    fresh.set_state(state)
+    assert fresh.get_state() == src.get_state()

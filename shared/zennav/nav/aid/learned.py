@@ -39,6 +39,25 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
   ANFIS 9.42 m and Elman 7.87 m against 7.14 m without learning; 60 s, 24.05 and 26.59 m against 25.96 m. ANFIS
   seed 0 at 30 s: 10.26 m without the two rules, 7.53 m with them. The learned forward speed stays 3.3-6.2 m/s RMS
   off (its answers against the truth); neither rule makes the learned rows lower at 30 s, so both stay off.
+  A third rule, consistency with the constrained filter (learn_consistency): each output's R is estimated from its own
+    innovations against the filter (predicted minus answered, over the answers of the outages: answers are fused
+    only without GNSS) by the engine's adaptive-R estimator (zennav.nav.adaptive_r, one of dimension 1 per output:
+    the innovation-based covariance matching of Mehra 1972 and Mohamed and Schwarz 1999, the Sage-Husa fading
+    memory, with adaptive_forgetting, adaptive_test_probability, adaptive_ceiling and learn_consistency_window
+    innovations), floored at the answered variance: an output whose innovations stay larger than H P H' + R
+    predicts (the learned source inconsistent with the filter that NHC and ZUPT hold) is down-weighted, one that
+    agrees keeps its answered 1-sigma; counted learned_body_velocity_deweighted. The same innovation test the
+    engine applies to GNSS (adaptive_r), here per output, so that a bad forward speed does not take the lateral
+    output's weight with it. Measured there with the two rules above (benchmarks/constraints.py --held-fraction 0.5
+    --nhc-floor --consistency; median of seeds 0-2, RMS of the per-window maximum, without -> with it): 10 s
+    windows, ANFIS 1.35 -> 1.27 m and Elman 1.19 -> 1.19 m (NHC + ZUPT 1.22 m); 30 s, ANFIS 9.42 -> 7.73 m and
+    Elman 7.87 -> 6.74 m (7.14 m); 60 s, ANFIS 24.05 -> 23.16 m and Elman 26.59 -> 18.37 m (25.96 m): Elman lower
+    than NHC + ZUPT at all three, ANFIS at 60 s only. Alone (--consistency): 10 s, ANFIS 1.31 m,
+    Elman 1.21 m; 30 s, 7.32 and 7.07 m; 60 s, 20.84 and 21.71 m. The
+    forward answers stay 2.3-8 m/s RMS off the truth (ANFIS seed 0 in the worst 30 s window: answered 1-sigma
+    9.1 m/s, the filter's own forward speed 2.2 m/s off at its end), so they weigh little there; at 10 and 30 s
+    the differences are within the spread of the seeds (30 s: ANFIS 7.21-8.52 m, Elman 6.42-7.20 m), at 60 s
+    Elman's is not (15.41-18.69 m). All three stay off by default (NavConfig).
 
 An answer is fused only if no GNSS position fix was fused after its query's time (else learned_stale: the filter
 already knows better) and the query is at most NavConfig.learn_answer_max_age_s of data time old (else
@@ -51,6 +70,7 @@ import math
 
 import numpy as np
 
+from ..adaptive_r import AdaptiveR
 from ..aiding import body_velocity_model
 from ..eskf import N_STATES, POS
 from ..learning import BODY_EVERY_S, OUTPUTS, LearnQuery
@@ -77,6 +97,10 @@ class LearnedSource(AidSource):
         # floor of the lateral and vertical 1-sigma [m/s] under the non-holonomic constraint (0: none)
         self.nhc_floor = (math.sqrt(correlated_variance(config.nhc_std_mps, BODY_EVERY_S, config.nhc_corr_s))
                           if body and config.nhc and config.learn_nhc_floor else 0.0)
+        # the consistency rule (learn_consistency): one adaptive-R estimator per output, FRD
+        self.matching = ([AdaptiveR(1, config.learn_consistency_window, config.adaptive_forgetting,
+                                    config.adaptive_test_probability, 1.0, config.adaptive_ceiling)
+                          for _ in range(3)] if body and config.learn_consistency else None)
 
     def attach(self, nav) -> None:
         if self.held > 0.0:
@@ -135,11 +159,30 @@ class LearnedSource(AidSource):
             if not rows:
                 nav.counters[f"{self.name}_weak"] += 1
                 return False
-        return nav.update(self, Measurement(query.t_ns, value, z[rows], H[rows], np.diag(var[rows])))
+        R = np.diag(var[rows])
+        if self.matching is not None:
+            R = self._matched(nav, self.matching, z, H, var, rows)
+        return nav.update(self, Measurement(query.t_ns, value, z[rows], H[rows], R))
+
+    def _matched(self, nav, matching: list[AdaptiveR], z: np.ndarray, H: np.ndarray, var: np.ndarray,
+                 rows: list[int]) -> np.ndarray:
+        """The diagonal R [(m/s)^2] of the fused rows from their adaptive-R estimators matching (one per output; the
+        consistency rule of the module docstring): each row's innovation z [m/s] against H P H' and its answered
+        variance var; counted {name}_deweighted when a row's R is above the answered one."""
+        Hn = np.hstack([H, np.zeros((3, nav.n_states - H.shape[1]))]) if H.shape[1] < nav.n_states else H
+        R = np.array([matching[r].update(z[r:r + 1], Hn[r:r + 1] @ nav.kf.P @ Hn[r:r + 1].T,
+                                         np.array([[var[r]]]))[0, 0] for r in rows])
+        if np.any(R > var[rows] * (1.0 + 1e-9)):
+            nav.counters[f"{self.name}_deweighted"] += 1
+        return np.diag(R)
 
     def get_state(self) -> dict:
-        return {**super().get_state(), "bias_fix_ns": int(self.bias_fix_ns)}
+        return {**super().get_state(), "bias_fix_ns": int(self.bias_fix_ns),
+                **({} if self.matching is None else {"matching": [m.get_state() for m in self.matching]})}
 
     def set_state(self, state: dict) -> None:
         super().set_state(state)
         self.bias_fix_ns = int(state["bias_fix_ns"])
+        if self.matching is not None:
+            for m, st in zip(self.matching, state["matching"]):
+                m.set_state(st)
