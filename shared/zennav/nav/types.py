@@ -302,7 +302,7 @@ class NavConfig:
     learn_held_fraction: float = 0.0  # part of a learned body-velocity answer's variance that is a bias held through
     # the outage (a random-constant state per output, restarted at each outage's first answer); the rest is white
     learn_nhc_floor: bool = False  # with nhc: floor the learned lateral and vertical 1-sigma at the constraint's own
-    learn_consistency: bool = False  # learned body velocity: R of each output from its innovations (adaptive R)
+    learn_consistency: bool = True  # learned body velocity: R of each output from its innovations (adaptive R)
     learn_consistency_window: int = 5  # innovations [answers] in that estimator's inflation window
     # learned DVL beam errors (zennav.nav.dvl_anomaly): hold time [s] of a sample waiting for its answers; the
     # anomaly rule: k-sigma of the VB R, chi-square probability of lambda, persistence window and count [samples]
