@@ -171,9 +171,10 @@ class LearnedSource(AidSource):
         """The diagonal R [(m/s)^2] of the fused rows from their adaptive-R estimators matching (one per output; the
         consistency rule of the module docstring): each row's innovation z [m/s] against H P H' and its answered
         variance var; counted {name}_deweighted when a row's R is above the answered one."""
-        Hn = np.hstack([H, np.zeros((3, nav.n_states - H.shape[1]))]) if H.shape[1] < nav.n_states else H
-        R = np.array([matching[r].update(z[r:r + 1], Hn[r:r + 1] @ nav.kf.P @ Hn[r:r + 1].T,
-                                         np.array([[var[r]]]))[0, 0] for r in rows])
+        k = H.shape[1]  # a model of the first k states (the engine pads it with zeros, see Navigator.update)
+        HPHt = H @ nav.P[:k, :k] @ H.T
+        R = np.array([matching[r].update(z[r:r + 1], HPHt[r:r + 1, r:r + 1], np.array([[var[r]]]))[0, 0]
+                      for r in rows])
         if np.any(R > var[rows] * (1.0 + 1e-9)):
             nav.counters[f"{self.name}_deweighted"] += 1
         return np.diag(R)
