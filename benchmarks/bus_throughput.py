@@ -9,6 +9,8 @@
    - "ins":   zennav-ins (the navigation engine per sample, one solution published per sample);
    - "ins-compiled": zennav-ins --compiled, batched only (each imu_batch through the engine's block loop compiled
               by numba; the same solutions);
+   - "ins-batch": zennav-ins --compiled --solution-batch, batched only (the same solutions, those of each stretch
+              the block loop runs at once in one nav_solution_batch message);
    - "learn": zennav-ins --learning with zennav-trainer and zennav-predictor running (samples and queries
               published, answers fused);
    - "learn-compiled": the same with zennav-ins --learning --compiled, batched only (the block loop from one
@@ -157,14 +159,17 @@ def sink_main(argv) -> int:
     return run.serve()
 
 
+INS_ARGS = {"ins": [], "ins-compiled": ["--compiled"], "ins-batch": ["--compiled", "--solution-batch"]}
+
+
 def start_consumer(procs: Procs, kind: str, bus_args: list[str], bus, solution_every: int = 1) -> None:
     """The consumer processes of a case, alive on the bus when this returns."""
     wait = ["ins"]
     if kind == "bus":
         procs.start([PY, __file__, "--role", "sink", *bus_args], "sink")
-    elif kind in ("ins", "ins-compiled"):
+    elif kind in INS_ARGS:
         procs.start([PY, "-m", "zennav.services.ins", "--solution-every", str(solution_every), *bus_args,
-                     *(["--compiled"] if kind == "ins-compiled" else [])], "ins")
+                     *INS_ARGS[kind]], "ins")
     else:  # the learning loop: development signing (unsigned sets), the trainer on the CPU
         procs.start([PY, "-m", "zennav.services.predictor", "--allow-unsigned", *bus_args], "predictor")
         procs.start([PY, "-m", "zennav.services.trainer", "--unsigned", "--device", "cpu", "--torch-threads", "1",
@@ -316,9 +321,10 @@ def stage_costs(duration: float, batch: int) -> dict:
 
 def throughput(kinds: list[str], routes: list[bool], duration: float, batch: int, repeat: int,
                solution_every: int) -> list[dict]:
-    """Every kind with one sample per message and with batch (ins-compiled: batched only); the ins also publishing
-    one solution in solution_every (when > 1, batched)."""
-    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch}) if not kind.endswith("-compiled") or b > 1]
+    """Every kind with one sample per message and with batch (ins-compiled, ins-batch: batched only); the ins also
+    publishing one solution in solution_every (when > 1, batched)."""
+    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch})
+             if not kind.endswith(("-compiled", "-batch")) or b > 1]
     for kind in ("ins", "ins-compiled"):
         if kind in kinds and solution_every > 1 and batch > 1:
             cases.insert(cases.index((kind, batch, 1)) + 1, (kind, batch, solution_every))
@@ -427,7 +433,8 @@ def summary(results: list[dict]) -> None:
     """The medians beside issue 17's targets (peer-to-peer, the best batch size measured)."""
     print("\nissue 17 targets (peer-to-peer; medians):")
     for kind, target in TARGETS.items():
-        rows = [r for r in results if r["test"] == "throughput" and r["consumer"] in (kind, f"{kind}-compiled")
+        rows = [r for r in results if r["test"] == "throughput"
+                and r["consumer"] in (kind, f"{kind}-compiled", f"{kind}-batch")
                 and r["via"] == "peer-to-peer" and r["solution_every"] == 1]  # a solution per sample
         if rows:
             best = max(rows, key=lambda r: r["rate_per_s"])
@@ -482,7 +489,7 @@ def main() -> int:
                   + (f", with --compiled {c['ins_compiled']}" if "ins_compiled" in c else "")
                   + f", solution packed {c['solution_msg']}", flush=True)
     if args.only in (None, "throughput"):
-        kinds = ["bus", "ins"] + ([] if args.no_compiled or args.batch <= 1 else ["ins-compiled"]) + \
+        kinds = ["bus", "ins"] + ([] if args.no_compiled or args.batch <= 1 else ["ins-compiled", "ins-batch"]) + \
             ([] if args.no_learn else ["learn"] + ([] if args.no_compiled or args.batch <= 1 else ["learn-compiled"]))
         kinds = [k for k in kinds if args.consumers is None or k in args.consumers.split(",")]
         results += throughput(kinds, routes, args.duration, args.batch, args.repeat, args.solution_every)
