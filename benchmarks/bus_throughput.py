@@ -9,6 +9,8 @@
    - "ins":   zennav-ins (the navigation engine per sample, one solution published per sample);
    - "ins-compiled": zennav-ins --compiled, batched only (each imu_batch through the engine's block loop compiled
               by numba; the same solutions);
+   - "ins-batch": zennav-ins --compiled --solution-batch, batched only (the same solutions, those of each stretch
+              the block loop runs at once in one nav_solution_batch message);
    - "learn": zennav-ins --learning with zennav-trainer and zennav-predictor running (samples and queries
               published, answers fused);
    - "learn-compiled": the same with zennav-ins --learning --compiled, batched only (the block loop from one
@@ -21,7 +23,10 @@
 2. Latency: IMU paced at 200 Hz (real time), one sample per message; latency = wall clock at nav/solution
    receive (this process) minus the IMU message's publish time (ingest), percentiles over every sample; split at
    the solution's publish time (its pub_ns) into the ins hop (ingest publish -> ins solution publish: transport,
-   wake-ups, the engine) and the solution hop (ins publish -> receive here).
+   wake-ups, the engine) and the solution hop (ins publish -> receive here). Beside it the transport's floor on
+   the same two hops with no zennav code: this process publishes raw bytes the size of an IMU message on the
+   IMU key at 200 Hz, an echo process (plain zenoh subscriber, a worker thread as the services have) publishes
+   them back on the solution key with the solution's QoS, and the round trip is timed here.
 3. Stage costs (in this process, no transport): microseconds per IMU sample of decode+validate, merge, the ins's
    whole per-message path (engine included) and the solution message (packed as the ins packs it,
    zennav.messages.SolutionPacker), unbatched and batched:
@@ -154,14 +159,17 @@ def sink_main(argv) -> int:
     return run.serve()
 
 
+INS_ARGS = {"ins": [], "ins-compiled": ["--compiled"], "ins-batch": ["--compiled", "--solution-batch"]}
+
+
 def start_consumer(procs: Procs, kind: str, bus_args: list[str], bus, solution_every: int = 1) -> None:
     """The consumer processes of a case, alive on the bus when this returns."""
     wait = ["ins"]
     if kind == "bus":
         procs.start([PY, __file__, "--role", "sink", *bus_args], "sink")
-    elif kind in ("ins", "ins-compiled"):
+    elif kind in INS_ARGS:
         procs.start([PY, "-m", "zennav.services.ins", "--solution-every", str(solution_every), *bus_args,
-                     *(["--compiled"] if kind == "ins-compiled" else [])], "ins")
+                     *INS_ARGS[kind]], "ins")
     else:  # the learning loop: development signing (unsigned sets), the trainer on the CPU
         procs.start([PY, "-m", "zennav.services.predictor", "--allow-unsigned", *bus_args], "predictor")
         procs.start([PY, "-m", "zennav.services.trainer", "--unsigned", "--device", "cpu", "--torch-threads", "1",
@@ -313,9 +321,10 @@ def stage_costs(duration: float, batch: int) -> dict:
 
 def throughput(kinds: list[str], routes: list[bool], duration: float, batch: int, repeat: int,
                solution_every: int) -> list[dict]:
-    """Every kind with one sample per message and with batch (ins-compiled: batched only); the ins also publishing
-    one solution in solution_every (when > 1, batched)."""
-    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch}) if not kind.endswith("-compiled") or b > 1]
+    """Every kind with one sample per message and with batch (ins-compiled, ins-batch: batched only); the ins also
+    publishing one solution in solution_every (when > 1, batched)."""
+    cases = [(kind, b, 1) for kind in kinds for b in sorted({1, batch})
+             if not kind.endswith(("-compiled", "-batch")) or b > 1]
     for kind in ("ins", "ins-compiled"):
         if kind in kinds and solution_every > 1 and batch > 1:
             cases.insert(cases.index((kind, batch, 1)) + 1, (kind, batch, solution_every))
@@ -340,18 +349,78 @@ def throughput(kinds: list[str], routes: list[bool], duration: float, batch: int
     return results
 
 
-def latency(routes: list[bool], duration: float, repeat: int) -> list[dict]:
+ECHO_IN, ECHO_OUT = "zennav/@v1/bench/sensor/imu/echo", "zennav/@v1/bench/nav/solution"
+
+
+def echo_main(argv) -> int:
+    """The transport floor's echo: every payload on ECHO_IN published back unchanged on ECHO_OUT (plain zenoh,
+    the IMU's and the solution's QoS through zennav.bus, no decoding), until SIGTERM."""
+    from zennav.bus import Bus
+    from zennav.stopsignals import on_stop_signals
+
+    p = argparse.ArgumentParser()
+    p.add_argument("--connect", required=True)
+    args = p.parse_args(argv)
+    bus = Bus("echo", mode="peer", connect=[args.connect], listen=["tcp/127.0.0.1:0"])
+    out = bus.publisher(ECHO_OUT, latest=False)
+    bus.subscribe(ECHO_IN, lambda key, payload, recv_ns: out.put_raw(payload), validate=False, channel="fifo")
+    stop = threading.Event()
+    on_stop_signals(lambda signum: stop.set())
+    stop.wait()
+    bus.close()
+    return 0
+
+
+def transport_floor(duration: float, size: int = 154) -> np.ndarray:
+    """[ms] round trips bench -> echo -> bench at 200 Hz of raw payloads of size bytes (an IMU message's, with
+    its header)."""
+    from zennav.bus import Bus
+
+    procs = Procs()
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    bus = Bus("bench", mode="peer", listen=[ep], connect=[])
+    rtt: list[int] = []
+    sub = bus.subscribe(ECHO_OUT, lambda key, payload, recv_ns: rtt.append(
+        recv_ns - int.from_bytes(payload[:8], "little")), validate=False, channel="fifo")
+    try:
+        procs.start([PY, __file__, "--role", "echo", "--connect", ep], "echo")
+        pub = bus.publisher(ECHO_IN, latest=False)
+        t_end = time.monotonic() + 30
+        while not pub.matching and time.monotonic() < t_end:
+            time.sleep(0.05)
+        time.sleep(1.0)  # the echo's publisher reaches this subscriber
+        pad = bytes(max(0, size - 8))
+        t_next = time.monotonic()
+        for _ in range(int(duration * 200)):
+            pub.put_raw(time.time_ns().to_bytes(8, "little") + pad)
+            t_next += 0.005
+            time.sleep(max(0.0, t_next - time.monotonic()))
+        time.sleep(0.5)
+        return np.array(rtt) / 1e6
+    finally:
+        sub.close()
+        bus.close()
+        procs.stop()
+
+
+def latency(routes: list[bool], duration: float, repeat: int, consumers: list[str]) -> list[dict]:
     results = []
-    for via_router in routes:
-        runs = [run_case("ins", via_router, duration, "1", want_latency=True) for _ in range(repeat)]
+    floor = np.concatenate([transport_floor(duration) for _ in range(repeat)])
+    fm = percentiles(floor)
+    results.append({"test": "transport_floor_200hz", "runs": repeat, "round_trips": len(floor), "latency_ms": fm})
+    print(f"floor      peer-to-peer  zenoh alone, the same two hops at 200 Hz (154 B raw, echo process): p50 "
+          f"{fm['p50']:.3f} ms, p90 {fm['p90']:.3f} ms, p99 {fm['p99']:.3f} ms, max {fm['max']:.3f} ms "
+          f"({len(floor)} round trips, {int(duration * 200) * repeat} sent)", flush=True)
+    for via_router, kind in ((v, k) for v in routes for k in consumers):
+        runs = [run_case(kind, via_router, duration, "1", want_latency=True) for _ in range(repeat)]
         ms = np.concatenate([x.pop("latency_ms_all") for x in runs])
         lm, ins_hop, sol_hop = (percentiles(ms[:, i]) for i in range(3))
-        r = {"test": "latency_200hz", "via": runs[0]["via"], "runs": len(runs), "solutions": len(ms),
+        r = {"test": "latency_200hz", "consumer": kind, "via": runs[0]["via"], "runs": len(runs), "solutions": len(ms),
              "lost": sum(x["lost"] for x in runs), "latency_ms": lm,
              "p50_per_run": [x["latency_ms"]["p50"] for x in runs],
              "p99_per_run": [x["latency_ms"]["p99"] for x in runs], "ins_hop_ms": ins_hop, "solution_hop_ms": sol_hop}
         results.append(r)
-        print(f"latency    {r['via']:<13} IMU publish -> solution receive at 200 Hz: p50 {lm['p50']:.3f} ms, "
+        print(f"latency    {r['via']:<13} {kind}: IMU publish -> solution receive at 200 Hz: p50 {lm['p50']:.3f} ms, "
               f"p90 {lm['p90']:.3f} ms, p99 {lm['p99']:.3f} ms, max {lm['max']:.3f} ms "
               f"({r['solutions']} solutions over {len(runs)} runs, lost {r['lost']}; per run p50 "
               f"{r['p50_per_run']}, p99 {r['p99_per_run']}; ins hop p50 {ins_hop['p50']:.3f} ms, p99 "
@@ -364,7 +433,8 @@ def summary(results: list[dict]) -> None:
     """The medians beside issue 17's targets (peer-to-peer, the best batch size measured)."""
     print("\nissue 17 targets (peer-to-peer; medians):")
     for kind, target in TARGETS.items():
-        rows = [r for r in results if r["test"] == "throughput" and r["consumer"] in (kind, f"{kind}-compiled")
+        rows = [r for r in results if r["test"] == "throughput"
+                and r["consumer"] in (kind, f"{kind}-compiled", f"{kind}-batch")
                 and r["via"] == "peer-to-peer" and r["solution_every"] == 1]  # a solution per sample
         if rows:
             best = max(rows, key=lambda r: r["rate_per_s"])
@@ -375,16 +445,19 @@ def summary(results: list[dict]) -> None:
                   f"({'met' if best['rate_per_s'] >= target else 'NOT met'}; {side}; "
                   f"{'nothing' if clean else 'SAMPLES'} lost or duplicated)")
     for r in results:
+        if r["test"] == "transport_floor_200hz":
+            print(f"  the transport's floor on those two hops (zenoh alone): p50 {r['latency_ms']['p50']:.3f} ms, "
+                  f"p99 {r['latency_ms']['p99']:.3f} ms")
         if r["test"] == "latency_200hz" and r["via"] == "peer-to-peer":
             lm = r["latency_ms"]
-            print("  latency at 200 Hz, one sample per message: " + ", ".join(
+            print(f"  latency at 200 Hz, one sample per message ({r['consumer']}): " + ", ".join(
                 f"{q} {lm[q]:.3f} ms (<= {t} ms: {'met' if lm[q] <= t else 'NOT met'})"
                 for q, t in LATENCY_TARGET_MS.items()))
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--role", default="bench", choices=("bench", "sink"))
+    ap.add_argument("--role", default="bench", choices=("bench", "sink", "echo"))
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds for throughput (200 Hz)")
     ap.add_argument("--latency-duration", type=float, default=30.0, help="real-time seconds for latency")
     ap.add_argument("--batch", type=int, default=50,
@@ -396,11 +469,15 @@ def main() -> int:
     ap.add_argument("--no-learn", action="store_true", help="skip the learning-loop case")
     ap.add_argument("--no-compiled", action="store_true", help="skip the zennav-ins --compiled case")
     ap.add_argument("--consumers", default=None, help="comma-separated consumers to run (default: all not skipped)")
+    ap.add_argument("--latency-consumers", default="ins",
+                    help="comma-separated consumers of the latency case: ins, ins-compiled (one sample per message)")
     ap.add_argument("--only", default=None, choices=("throughput", "latency", "stages"), help="run one part")
     ap.add_argument("--json", default=None, help="also write the results here")
     args, rest = ap.parse_known_args()
     if args.role == "sink":
         return sink_main(rest)
+    if args.role == "echo":
+        return echo_main(rest)
     results: list[dict] = []
     routes = [False, True] if args.router else [False]
     if args.only in (None, "stages"):
@@ -412,12 +489,12 @@ def main() -> int:
                   + (f", with --compiled {c['ins_compiled']}" if "ins_compiled" in c else "")
                   + f", solution packed {c['solution_msg']}", flush=True)
     if args.only in (None, "throughput"):
-        kinds = ["bus", "ins"] + ([] if args.no_compiled or args.batch <= 1 else ["ins-compiled"]) + \
+        kinds = ["bus", "ins"] + ([] if args.no_compiled or args.batch <= 1 else ["ins-compiled", "ins-batch"]) + \
             ([] if args.no_learn else ["learn"] + ([] if args.no_compiled or args.batch <= 1 else ["learn-compiled"]))
         kinds = [k for k in kinds if args.consumers is None or k in args.consumers.split(",")]
         results += throughput(kinds, routes, args.duration, args.batch, args.repeat, args.solution_every)
     if args.only in (None, "latency"):
-        results += latency(routes, args.latency_duration, args.repeat)
+        results += latency(routes, args.latency_duration, args.repeat, args.latency_consumers.split(","))
     summary(results)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))

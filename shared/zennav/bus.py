@@ -13,7 +13,8 @@
 
 Threading: every subscription receives into a zenoh channel (``fifo``: bounded and lossless, a full queue
 back-pressures the sender through reliable/blocking transport; ``ring``: keeps the newest) and one worker
-thread per subscription drains it, decodes, validates and calls the service's callback. A full fifo stops its
+thread per subscription drains it, decodes, validates and calls the service's callback (a nav_solution_batch
+once per solution it holds, zennav.messages.solutions; raw subscribers get its bytes). A full fifo stops its
 link's receiving: for a client (every flow through one link to the router) each fifo subscription therefore
 gets a session, a link, of its own, so one full queue holds back only its own stream. On one shared link it
 would hold back every stream behind it, and flows that cross through the router deadlock (the ins's solutions
@@ -275,15 +276,17 @@ class Subscription:
                     continue
             else:
                 value = payload
-            try:
-                if lock is not None:
-                    with lock:
-                        cb(key, value, recv_ns)
-                else:
-                    cb(key, value, recv_ns)
-            except Exception:
-                self.bus.errors["callback"] += 1
-                log.exception("callback for %s failed", key)
+            # a nav_solution_batch reaches a validating subscriber as the nav_solution messages it stands for
+            for msg in M.solutions(value) if validate and value["schema"] == "nav_solution_batch" else (value,):
+                try:
+                    if lock is not None:
+                        with lock:
+                            cb(key, msg, recv_ns)
+                    else:
+                        cb(key, msg, recv_ns)
+                except Exception:
+                    self.bus.errors["callback"] += 1
+                    log.exception("callback for %s failed", key)
 
     def close(self, join_timeout: float = 2.0) -> None:
         try:

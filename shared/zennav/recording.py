@@ -104,9 +104,10 @@ class SolutionTally:
             self.expected[key] = st.get("solutions") if st.get("done") else None
         elif stream.name == "nav/solution":
             times = self.times.setdefault(key, set())
-            if msg["t_ns"] in times:
-                self.repeats[key] = self.repeats.get(key, 0) + 1
-            times.add(msg["t_ns"])
+            for t in msg.get("t_ns_list") or (msg["t_ns"],):  # a nav_solution_batch: each of its solutions
+                if t in times:
+                    self.repeats[key] = self.repeats.get(key, 0) + 1
+                times.add(t)
 
     def ended(self) -> bool:
         """Every ins seen acknowledged its stream's end."""
@@ -202,9 +203,10 @@ class McapRecorder:
                                 sequence=int(seq) & 0xFFFFFFFF)
             self.count += 1
             self.per_key[key] = self.per_key.get(key, 0) + 1
-            if msg is not None:
-                for topic, schema, view in self._views.derived(key, msg):
-                    self._add_view(topic, schema, view, key, log_ns, int(pub))
+            for m in M.solutions(msg) if msg is not None else ():  # a nav_solution_batch: each solution's views
+                m_log = log_ns if m is msg else log_time_ns(m, recv_ns)
+                for topic, schema, view in self._views.derived(key, m):
+                    self._add_view(topic, schema, view, key, m_log, int(pub))
 
     def _add_view(self, topic: str, schema: str, view: dict, key: str, log_ns: int, pub_ns: int) -> None:
         cid = self._channels.get((topic, schema))

@@ -332,3 +332,38 @@ def test_solution_packer_gives_the_bytes_of_the_map():
         assert b == M.encode(m), k
         if k % 2 == 0:  # a realistic message: valid on the bus
             assert M.validate_map(M.decode(b)) == "", k
+
+
+def test_solution_batch_stands_for_its_solutions_and_refuses_bad_shapes():
+    """nav_solution_batch: expanded (zennav.messages.solutions), each row is the nav_solution the ins would publish
+    alone (the map SolutionPacker packs, with the batch's header); rows that do not add up, times that do not
+    increase or do not end at t_ns are refused by the validator."""
+    rng = np.random.default_rng(5)
+    n = 4
+    q = rng.normal(size=(n, 4))
+    rows = np.column_stack([0.6 + rng.normal(size=n) * 1e-6, 2.1 + rng.normal(size=n) * 1e-6,
+                            50 + rng.normal(size=n), rng.normal(size=(n, 3)), q / np.linalg.norm(q, axis=1)[:, None]])
+    std = np.abs(rng.normal(size=(n, 9)))
+
+    class Nav:
+        gyro_bias, accel_bias, gnss_state = [1e-5, -2e-6, 3e-7], [0.01, -0.02, 0.003], "outage"
+
+    t = [356400 * 10**9 + 5_000_000 * i for i in range(n)]
+    cseq, pub = [10 + i for i in range(n)], [1_700_000_000 * 10**9 + i for i in range(n)]
+    b = M.nav_solution_batch_msg(Nav, t, rows, std, cseq, pub)
+    b.update(src="ins.4f2a", seq=7, pub_ns=99)
+    b = M.decode(M.encode(b))
+    key = "zennav/@v1/car/nav/solution"
+    assert M.validate_map(b, key) == ""
+    packer = M.SolutionPacker()
+    got = M.solutions(b)
+    assert len(got) == n
+    for i, m in enumerate(got):
+        alone = packer.pack(t[i], rows[i].tolist(), std[i].tolist(), Nav.gyro_bias, Nav.accel_bias, Nav.gnss_state,
+                            cseq[i], pub[i], "ins.4f2a", 7, 99)
+        assert M.encode(m) == alone, i
+    assert M.solutions(got[0]) == [got[0]]
+    for bad, code in ((dict(llh=b["llh"][:-1]), "bad_shape"), (dict(imu_cseq=cseq[:-1]), "bad_shape"),
+                      (dict(t_ns_list=[t[1], t[0], *t[2:]]), "bad_value"), (dict(t_ns=t[-1] + 1), "bad_value"),
+                      (dict(t_ns_list=[], imu_cseq=[], imu_pub_ns=[]), "bad_shape")):
+        assert M.validate_map({**b, **bad}, key).startswith(code), bad

@@ -33,3 +33,14 @@ def test_repeats_do_not_complete_the_tally_and_missing_is_exact():
         tally.add(sol, _solution(t))
     assert tally.complete() and tally.missing() == {sol: 0}
     assert tally.summary() == f"{sol}: 112 solutions, 20 repeated (a resumed ins's), 0 missing"
+
+
+def test_a_solution_batch_counts_each_of_its_solutions():
+    """An ins with --solution-batch: each time of a nav_solution_batch counts as one solution."""
+    tally = SolutionTally()
+    sol, st = K.nav_solution(), K.nav_status()
+    tally.add(sol, {"schema": "nav_solution_batch", "t_ns": 49, "t_ns_list": list(range(50))})
+    tally.add(sol, _solution(50))  # one the step-wise engine took, alone
+    tally.add(sol, {"schema": "nav_solution_batch", "t_ns": 99, "t_ns_list": list(range(51, 100))})
+    tally.add(st, _status(True, 100))
+    assert tally.complete() and tally.repeats == {}

@@ -38,6 +38,34 @@ def test_mcap_round_trip_is_exact(tmp_path, encoding):
     json.dumps(s)
 
 
+def test_mcap_views_of_a_solution_batch_are_those_of_its_solutions(tmp_path):
+    """A recorded nav_solution_batch is stored as it came, and its Foxglove views are its solutions', each at its
+    own sample time: the same as recording the solutions one by one."""
+    from mcap.reader import make_reader
+
+    from zennav.recording import McapRecorder
+
+    class Nav:
+        gyro_bias, accel_bias, gnss_state = [0.0, 1e-6, 0.0], [0.01, 0.0, 0.0], "valid"
+
+    n = 5
+    rows = np.column_stack([np.full(n, 0.6), np.full(n, 2.1), np.arange(n) + 50.0, np.ones((n, 3)),
+                            np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))])
+    b = M.nav_solution_batch_msg(Nav, [10**18 + i for i in range(n)], rows, np.full((n, 9), 0.1), range(n),
+                                 [0] * n)
+    b.update(src="ins.1", seq=0, pub_ns=7)
+    views = {}
+    for name, msgs in (("batch", [b]), ("single", M.solutions(b))):
+        rec = McapRecorder(tmp_path / f"{name}.mcap", "json")
+        for m in msgs:
+            rec.add(K.nav_solution(), M.encode(m), 0)
+        rec.close()
+        with open(tmp_path / f"{name}.mcap", "rb") as f:
+            views[name] = [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()
+                           if c.topic != K.nav_solution()]
+    assert len(views["batch"]) == 3 * n and views["batch"] == views["single"]
+
+
 def test_launch_files_in_deploy_parse():
     """local.yaml and edge.yaml start with their router; the edge set has no trainer (it runs elsewhere) and its
     ins learns; trainer.yaml is the trainer alone, a client, its router's address a launch parameter (none in the

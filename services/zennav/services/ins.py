@@ -8,7 +8,8 @@ Wiring table
                                          the IMU sample that reaches their time; stream_end -> final status
                <base>/attitude           --attitude-alignment: at-rest roll/pitch in coarse alignment
                <base>/learn/correction   --learning: the predictor's answers, fused (zennav.learn.link)
-    publishes  <nav>/solution            one per IMU sample (every --solution-every-th)
+    publishes  <nav>/solution            one per IMU sample (every --solution-every-th; --solution-batch: those of
+                                         a stretch of an imu_batch in one nav_solution_batch)
                <nav>/aid/<source>        every aid source's status record (gnss_pos, gnss_vel, dvl, depth, ...)
                <nav>/status              engine status, stream progress, drops: every second of data time, on
                                          GNSS or alignment state changes, at the stream end (its acknowledgement)
@@ -83,6 +84,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "about 115 MB resident memory, benchmarks/memory.py; compiled once per machine, loaded in "
                         "about a second; with --learning the loop runs from one learning event to the next: a fix, "
                         "a query; the drift target's shadow INSs take every sample step-wise)")
+    p.add_argument("--solution-batch", action="store_true",
+                   help="with --compiled: the solutions of each stretch of an imu_batch the block loop runs at once "
+                        "in one nav_solution_batch message (the same solutions; zennav.bus subscribers receive them "
+                        "one by one)")
     p.add_argument("--attitude-alignment", action="store_true",
                    help="take roll/pitch from the attitude service during coarse alignment (heading unknown)")
     p.add_argument("--attitude-tilt-std", type=float, default=1.0,
@@ -104,6 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    if args.solution_batch and not args.compiled:
+        raise SystemExit("zennav-ins: --solution-batch needs --compiled (the block loop's rows)")
     run = ServiceRunner("ins", args)
     try:
         filter_params = filter_settings("", args.params, args.profile, None)
@@ -129,6 +136,9 @@ def main(argv=None) -> int:
     def put_solution(nav, t_ns: int, row, std: list, cseq: int, pub_ns: int) -> None:  # packed straight to bytes
         put_packed(pack, t_ns, row, std, nav.gyro_bias, nav.accel_bias, nav.gnss_state, cseq, pub_ns)
 
+    def put_batch(nav, t_ns, rows, std, cseq, pub_ns) -> None:
+        pubs["solution"].put(M.nav_solution_batch_msg(nav, t_ns, rows, std, cseq, pub_ns))
+
     learn = None
     if args.learning:
         from zennav.nav.learning import TARGETS
@@ -153,7 +163,8 @@ def main(argv=None) -> int:
                    checkpoint=Checkpointer(args.checkpoint, args.checkpoint_every), bridge_max_s=args.bridge_max,
                    takeover_after_s=args.takeover_after,
                    aid_keys={"dvl": k.dvl(args.dvl_id), "depth": k.depth(args.depth_id)},
-                   block_loop="compiled" if args.compiled else None, put_solution=put_solution)
+                   block_loop="compiled" if args.compiled else None, put_solution=put_solution,
+                   put_batch=put_batch if args.solution_batch else None)
     run.counters = lambda: {**node.counters(), "missed": sum(bus.missed.values())}
     on_sensor = lambda key, msg, recv_ns: node.on_sensor(key, msg)  # noqa: E731
     backfill = None

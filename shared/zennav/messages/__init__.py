@@ -53,11 +53,13 @@ from .nav import (
     attitude_msg,
     check_nav_status,
     euler_list,
+    nav_solution_batch_msg,
     nav_solution_msg,
     nav_solution_msg_of,
     nav_solution_msg_of_row,
     nav_status_msg,
     noise_map,
+    solutions,
 )
 from .schema import (
     ANY,
@@ -107,9 +109,11 @@ __all__ = [
     "FLOATS", "floats", "gnss_fix", "gnss_msg", "HEADER", "HISTORY_QOS", "imu_batch_msg", "imu_msg", "INT", "INTS",
     "Keys",
     "learn_query_msg", "learn_sample_msg", "make", "MAP", "map_array", "map_to_dataclass", "model_params_msg",
+    "nav_solution_batch_msg",
     "nav_solution_msg", "nav_solution_msg_of", "nav_solution_msg_of_row", "nav_status_msg", "noise_map", "OPT",
     "params_checksum",
     "PARAMSET_FORMAT", "paramset_of", "pyval", "QoS", "qos_of", "qos_table", "ROOT", "samples", "Schema",
-    "SCHEMAS", "SENSOR", "SequenceMerger", "SERVICE_STATES", "SolutionPacker", "service_status_msg", "STR", "Stream",
+    "SCHEMAS", "SENSOR", "SequenceMerger", "SERVICE_STATES", "SolutionPacker", "service_status_msg", "solutions",
+    "STR", "Stream",
     "STREAM_BY_NAME", "stream_of", "STREAMS", "STRS", "validate_map", "ValidationError", "Validator", "VEC",
 ]

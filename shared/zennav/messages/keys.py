@@ -169,7 +169,7 @@ STREAMS: tuple[Stream, ...] = (
     Stream("sensor/stream", r"sensor/stream", ("stream_start", "stream_end"), "cseq",
            QoS("reliable", "block", "DATA_HIGH", latest=True)),
     Stream("attitude", r"attitude", ("attitude",), "strict", QoS("reliable", "block", "DATA_HIGH", latest=True)),
-    Stream("nav/solution", _NAV + r"solution", ("nav_solution",), "strict",
+    Stream("nav/solution", _NAV + r"solution", ("nav_solution", "nav_solution_batch"), "strict",
            QoS("reliable", "block", "DATA_HIGH", express=True, latest=True)),
     Stream("nav/aid", _NAV + r"aid/[^/]+", ("aid_report",), "nondecreasing", QoS("reliable", "block", "DATA")),
     Stream("nav/status", _NAV + r"status", ("nav_status",), "nondecreasing",

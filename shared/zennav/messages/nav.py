@@ -1,5 +1,6 @@
-"""Navigation messages (ins and attitude outputs): attitude, nav_solution, aid_report (one aid source's status
-record, on ``nav/aid/<source>``) and nav_status, with their builders."""
+"""Navigation messages (ins and attitude outputs): attitude, nav_solution (and nav_solution_batch, the solutions
+of consecutive IMU samples in one message), aid_report (one aid source's status record, on ``nav/aid/<source>``)
+and nav_status, with their builders."""
 from __future__ import annotations
 
 import math
@@ -10,7 +11,7 @@ import numpy as np
 
 from .codec import floats, make
 from .keys import CHUNK
-from .schema import BOOL, FLOAT, FLOATS, INT, MAP, OPT, SCHEMAS, STR, STRS, VEC, define
+from .schema import BOOL, FLOAT, FLOATS, INT, INTS, MAP, OPT, SCHEMAS, STR, STRS, VEC, define
 
 ALIGN_STATES = ("coarse", "fine", "aligned")
 
@@ -71,6 +72,29 @@ define("nav_solution", 1, "Navigation solution of the IMU at t_ns (see zennav.na
        "imu_cseq/imu_pub_ns identify the IMU sample that produced it (latency, loss checks).",
        llh=VEC(3), v_n=VEC(3), q_nb=VEC(4), euler=VEC(3), gyro_bias=VEC(3), accel_bias=VEC(3),
        std_pos_ned=VEC(3), std_v_n=VEC(3), std_euler=VEC(3), gnss_state=STR, imu_cseq=INT, imu_pub_ns=INT)
+def check_nav_solution_batch(msg: dict) -> str:
+    """Consistency of a nav_solution_batch (types already checked): '' or 'code: detail'."""
+    t, n = msg["t_ns_list"], len(msg["t_ns_list"])
+    want = {f: k * n for f, k in _BATCH_ROWS}
+    if n == 0 or len(msg["imu_cseq"]) != n or len(msg["imu_pub_ns"]) != n or \
+            any(len(msg[f]) != k for f, k in want.items()):
+        return f"bad_shape: nav_solution_batch of {n} times needs {n} imu_cseq/imu_pub_ns and rows of " + \
+            ", ".join(f"{f} {k}" for f, k in want.items())
+    if t[-1] != msg["t_ns"] or any(b <= a for a, b in zip(t, t[1:])):
+        return "bad_value: nav_solution_batch t_ns_list must increase strictly and end at t_ns"
+    return ""
+
+
+_BATCH_ROWS = (("llh", 3), ("v_n", 3), ("q_nb", 4), ("std_pos_ned", 3), ("std_v_n", 3), ("std_euler", 3))
+define("nav_solution_batch", 1, "The nav_solution of each of N >= 1 consecutive IMU samples in one message (the ins "
+       "with --solution-batch: one per stretch of an imu_batch its block loop ran at once): t_ns_list, imu_cseq, "
+       "imu_pub_ns (N ints, t_ns_list strictly increasing, its last = t_ns); llh, v_n, q_nb, std_pos_ned, std_v_n, "
+       "std_euler (N rows each, row after row); gyro_bias, accel_bias, gnss_state: the same for every row. Row i is "
+       "the nav_solution at t_ns_list[i] with euler = zennav.messages.euler_list(q_nb of row i); subscribers of "
+       "zennav.bus get the N nav_solution messages (``solutions``).",
+       check=check_nav_solution_batch, t_ns_list=INTS, imu_cseq=INTS, imu_pub_ns=INTS, llh=FLOATS, v_n=FLOATS,
+       q_nb=FLOATS, std_pos_ned=FLOATS, std_v_n=FLOATS, std_euler=FLOATS, gyro_bias=VEC(3), accel_bias=VEC(3),
+       gnss_state=STR)
 define("aid_report", 1, "One aid source's status record: observation, innovation, innovation variance (diagonal), "
        "test ratio (None when undefined), fused, reason when rejected; optional (added compatibly): "
        "last_fused_t_ns the time this source last fused [ns GPS], faults the source's fault flags.",
@@ -159,6 +183,41 @@ def nav_solution_msg_of_row(nav, t_ns: int, row, std_pos_ned: list, std_v_n: lis
                 euler=euler_list(q0, q1, q2, q3), gyro_bias=_as_list(nav.gyro_bias),
                 accel_bias=_as_list(nav.accel_bias), std_pos_ned=std_pos_ned, std_v_n=std_v_n, std_euler=std_euler,
                 gnss_state=str(nav.gnss_state), imu_cseq=int(imu_cseq), imu_pub_ns=int(imu_pub_ns))
+
+
+def nav_solution_batch_msg(nav, t_ns: list, rows: np.ndarray, std: np.ndarray, imu_cseq: list,
+                           imu_pub_ns: list) -> dict:
+    """nav_solution_batch of the solutions at t_ns (N ints [ns]) with rows (N, 10: lat, lon [rad], h [m], v_n [m/s,
+    NED], q_nb; rows of the engine's block loop Navigator.run_imu) and std (N, 9: the 1-sigma of position [m, NED],
+    velocity [m/s, NED], attitude [rad]), with the Navigator's biases and GNSS state (constant over a block)."""
+    return make("nav_solution_batch", int(t_ns[-1]), t_ns_list=[int(x) for x in t_ns],
+                imu_cseq=[int(x) for x in imu_cseq], imu_pub_ns=[int(x) for x in imu_pub_ns],
+                llh=rows[:, 0:3].ravel().tolist(), v_n=rows[:, 3:6].ravel().tolist(),
+                q_nb=rows[:, 6:10].ravel().tolist(), std_pos_ned=std[:, 0:3].ravel().tolist(),
+                std_v_n=std[:, 3:6].ravel().tolist(), std_euler=std[:, 6:9].ravel().tolist(),
+                gyro_bias=_as_list(nav.gyro_bias), accel_bias=_as_list(nav.accel_bias),
+                gnss_state=str(nav.gnss_state))
+
+
+def solutions(msg: dict) -> list[dict]:
+    """The nav_solution messages a (validated) nav_solution_batch stands for, each with the batch's header (src,
+    seq, pub_ns): exactly the maps the ins publishes one by one without --solution-batch; any other message
+    itself."""
+    if msg["schema"] != "nav_solution_batch":
+        return [msg]
+    head = {"src": msg["src"], "seq": msg["seq"], "pub_ns": msg["pub_ns"]}
+    v = SCHEMAS["nav_solution"].version
+    llh, v_n, q, sp, sv, se = (msg[f] for f, _ in _BATCH_ROWS)
+    gb, ab, state = msg["gyro_bias"], msg["accel_bias"], msg["gnss_state"]
+    out = []
+    for i, (t, c, p) in enumerate(zip(msg["t_ns_list"], msg["imu_cseq"], msg["imu_pub_ns"])):
+        a, b = 3 * i, 3 * i + 3
+        q_nb = q[4 * i:4 * i + 4]
+        out.append({"schema": "nav_solution", "v": v, "t_ns": t, "llh": llh[a:b], "v_n": v_n[a:b], "q_nb": q_nb,
+                    "euler": euler_list(*q_nb), "gyro_bias": list(gb), "accel_bias": list(ab),
+                    "std_pos_ned": sp[a:b], "std_v_n": sv[a:b], "std_euler": se[a:b], "gnss_state": state,
+                    "imu_cseq": c, "imu_pub_ns": p, **head})
+    return out
 
 
 _U8, _U16, _U32, _U64 = (struct.Struct(f">B{c}").pack for c in "BHIQ")

@@ -51,13 +51,16 @@ class InsNode:
     the IMU samples of one message through the engine's block loop (module docstring; None: each sample
     step-wise). put_solution(nav, t_ns, row, std, cseq, pub_ns) publishes one solution from its floats (row:
     the 10 of the navigation state, std: the 9 1-sigma; the service packs them straight into bytes,
-    zennav.messages.SolutionPacker); None: publish("solution", its message map)."""
+    zennav.messages.SolutionPacker); None: publish("solution", its message map). put_batch(nav, t_ns, rows, std,
+    cseq, pub_ns) (with block_loop; None: put_solution for each row): the solutions of each stretch the block loop
+    ran at once in one call (t_ns, cseq, pub_ns: sequences; rows (N, 10) and std (N, 9): arrays;
+    zennav.messages.nav_solution_batch_msg); the samples the step-wise engine takes still go to put_solution."""
 
     def __init__(self, publish, log, filter_params: dict | None = None, solution_every: int = 1,
                  status_period_ns: int = 1_000_000_000, on_state=None, bus_rejected=None,
                  learning: LearningLink | None = None, fetch_start=None, imu_key=None, gnss_key=None,
                  checkpoint: Checkpointer | None = None, bridge_max_s: float = 0.5, takeover_after_s: float = 10.0,
-                 aid_keys: dict | None = None, block_loop: str | None = None, put_solution=None):
+                 aid_keys: dict | None = None, block_loop: str | None = None, put_solution=None, put_batch=None):
         self.publish, self.log = publish, log
         self.filter_params = dict(filter_params or {})
         self.learn = learning  # None: learning off (the default; the engine runs exactly as in the replay)
@@ -75,6 +78,7 @@ class InsNode:
         self._block: list[dict] = []  # IMU samples collected for the block loop (block_loop)
         self.on_sensor = self.follower.on_message
         self.put_solution = put_solution or self._solution_map
+        self.put_batch = put_batch
         self._std_of: tuple = (None, [])  # the engine's std_pos_ned and the 9 floats of _std
         self.nav: Navigator | None = None
         self.imu_count = self.gnss_count = self.sol_count = self.corrections = self.attitude_taken = 0
@@ -292,10 +296,16 @@ class InsNode:
                 self._imu(nav, sample(k))
                 k += 1
                 continue
-            for i, row, std in zip(range(k, k1), out_nav[k:k1].tolist(), out_std[k:k1].tolist()):
-                self.sol_count += 1
-                if self.sol_count % every == 0:
-                    put(nav, t[i], row, std, cseq[i], pub_ns[i])
+            if self.put_batch is not None:  # every solution_every-th row of the block, in one message
+                s0, self.sol_count = self.sol_count, self.sol_count + k1 - k
+                rows = slice(k + (-(s0 + 1)) % every, k1, every)
+                if rows.start < k1:
+                    self.put_batch(nav, t[rows], out_nav[rows], out_std[rows], cseq[rows], pub_ns[rows])
+            else:
+                for i, row, std in zip(range(k, k1), out_nav[k:k1].tolist(), out_std[k:k1].tolist()):
+                    self.sol_count += 1
+                    if self.sol_count % every == 0:
+                        put(nav, t[i], row, std, cseq[i], pub_ns[i])
             if self.learn is not None:  # no samples or queries in a block; the unanswered queries expire
                 self.learn.after_imu(nav)
             self._after(nav, t[k1 - 1], cseq[k1 - 1])
