@@ -12,6 +12,17 @@ omega_ib_b = C_bn omega_ie_n with omega_ie_n = Omega (cos L, 0, -sin L):
   a gyro whose bias is well below the horizontal earth rate (about 15 cos L deg/h): refused otherwise.
 The engine's alignment state machine (class Alignment): 'coarse' while the heading is unknown, then 'fine' from
 the fix that starts the filter, 'aligned' once the heading 1-sigma is below align_heading_std.
+A configured initial state (heading given) is tested against the first GNSS fixes before the filter trusts it
+(Alignment.check_initial): the normalised innovation squared (NIS) of the first fix's position, with S = H P H' + R
+from the configured 1-sigma (propagated to the fix) and the fix's own, and of the antenna velocity (the fix's
+velocity, else the displacement between the first two fixes against the INS's over the same interval), each
+against the chi-square quantile of the engine's gate (gate_probability) on 3 degrees of freedom (the NIS test of
+Bar-Shalom, Li & Kirubarajan 2001, "Estimation with applications to tracking and navigation", sec. 5.4; Groves
+2013 section 17.3.1, innovation-based outlier detection, applied to the initial state rather than the fix). A state
+the fixes contradict (e.g. a file's start cut without moving its initial state) is discarded, counted
+init_state_rejected and logged: the engine goes back to coarse alignment from the fixes with position, velocity
+and attitude unknown, as if no initial state had been configured (the biases and their 1-sigma are kept). A state
+that passes changes nothing.
 In motion (seed 002 step S3-1; Groves 2013 section 14.4.2): with the GNSS velocity v_n of a vehicle whose
 body x axis moves along its velocity (land vehicles, fixed-wing aircraft): yaw = atan2(v_E, v_N) and
 pitch = atan2(-v_D, sqrt(v_N^2 + v_E^2)) (the climb angle); roll 0 with a large variance for ground vehicles.
@@ -27,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import earth
-from .aiding import antenna_velocity, position_model
+from .aiding import antenna_velocity, position_model, velocity_model
 from .eskf import N_STATES, POS, VEL, initial_covariance
 from .rotation import euler_to_quat, quat_to_euler
 from .types import NS, AlignState, GnssFix, ImuNoise, InitialState, NavConfig
@@ -116,6 +127,18 @@ def course_alignment(v_n, std_v_n, course_std: float, tilt_std: float) -> tuple[
     return np.array([0.0, pitch, yaw]), np.array([tilt_std, pitch_std, yaw_std])
 
 
+UNKNOWN_ANGLE_STD = math.pi / math.sqrt(3.0)  # 1-sigma [rad] of an angle uniform in +-180 deg
+
+
+def coarse_initial(initial: InitialState) -> InitialState:
+    """The engine's start state for coarse alignment: yaw 0 as a placeholder with the 1-sigma of an unknown angle; so
+    for an unknown (non-finite) roll or pitch, which in-motion alignment then takes as 0 / the climb angle."""
+    known = [math.isfinite(float(a)) for a in initial.euler[:2]]
+    euler = [float(a) if k else 0.0 for a, k in zip(initial.euler[:2], known)] + [0.0]
+    std = [float(e) if k else UNKNOWN_ANGLE_STD for e, k in zip(initial.std_euler[:2], known)]
+    return replace(initial, euler=np.array(euler), std_euler=np.array(std + [UNKNOWN_ANGLE_STD]))
+
+
 class Alignment:
     """Coarse alignment of the engine and the alignment state machine (see the module docstring). With the
     heading unknown the engine is ``coarse``: it integrates the attitude only, holds the last GNSS velocity and
@@ -125,7 +148,10 @@ class Alignment:
     initial: the engine's initial state (yaw 0 placeholder when coarse); tilt_std: roll/pitch 1-sigma [rad] and
     tilt_source where it came from; seg / rest: angle [rad], velocity [m/s] increments and time [s] since the last
     fix / summed over the current rest; prev_track: (t_ns, llh, std_ned) of the last tracked fix; times: data time
-    [ns] each state was entered."""
+    [ns] each state was entered. checking: a configured initial state is under test (check_initial); check_prev:
+    (t_ns, llh, std_ned, residual after its update [m, NED] or None when not fused) of the last fix under test;
+    check_strike: why that fix failed the test ("" passed); initial_check: what the test found ("" while untested or
+    without a configured state, "accepted", or "rejected: " and why)."""
 
     def __init__(self, config: NavConfig, initial: InitialState, coarse: bool):
         self.config = config
@@ -142,6 +168,10 @@ class Alignment:
         self.times: dict[str, int] = {}
         self.method = "" if coarse else "given"
         self.state = AlignState.COARSE
+        self.checking = not coarse and config.gate_probability > 0.0
+        self.check_prev: tuple | None = None
+        self.check_strike = ""
+        self.initial_check = ""
 
     def start(self, nav) -> None:
         """Enter the first state at the engine's start time."""
@@ -160,6 +190,69 @@ class Alignment:
         self.times[str(state)] = int(t_ns)
         log.info("alignment %s at t=%.3f s (%s), heading 1-sigma %.2f deg", state, t_ns / NS, detail,
                  math.degrees(math.sqrt(nav.P[8, 8])))
+
+    def check_initial(self, nav, ctx, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> bool:
+        """Test the configured initial state at a fix (ctx: zennav.nav.aid.FixContext; z, H, R: the fix's position
+        innovation [m, NED], its H and R) before its update (see the module docstring). A failed test is a strike (the
+        fix goes on to the normal gate); a second in a row, the fixes at most outage_timeout_s apart, rejects the
+        state: returns True, the engine is coarse again and the fix is for the coarse alignment."""
+        fix, k, prev = ctx.fix, H.shape[1], self.check_prev
+        thr = nav.gate_threshold(3)
+        pair = prev is not None and 0.0 < (dt := (fix.t_ns - prev[0]) / NS) <= self.config.outage_timeout_s
+        nis = float(z @ np.linalg.solve(H @ nav.P[:k, :k] @ H.T + R, z))
+        fail, nis_v = "", math.nan
+        if nis > thr:
+            fail = f"position NIS {nis:.1f} > {thr:.1f}, innovation {np.round(z, 2)} m"
+        elif fix.v_n is not None and self.config.use_gnss_velocity:  # the fix's velocity
+            assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
+            z_v, H_v = velocity_model(nav.state, nav.lever_b, ctx.omega_ib_b, np.asarray(fix.v_n, dtype=float))
+            R_v = np.diag(np.square(np.maximum(fix.std_v_n, self.config.vel_std_floor_mps)))
+            nis_v = float(z_v @ np.linalg.solve(H_v @ nav.P[:N_STATES, :N_STATES] @ H_v.T + R_v, z_v))
+        elif pair and prev[3] is not None:  # the INS's displacement since the last fix against the fixes'
+            z_v = (z - prev[3]) / dt
+            nis_v = float(z_v @ np.linalg.solve(nav.P[VEL, VEL] + np.diag(np.diag(R) + prev[2] ** 2) / dt**2, z_v))
+        if nis_v > thr:
+            fail = f"velocity NIS {nis_v:.1f} > {thr:.1f}, innovation {np.round(z_v, 2)} m/s"
+        if fail and self.check_strike and pair:
+            return self._reject_initial(nav, ctx, f"{self.check_strike}; then {fail}")
+        self.check_strike = fail
+        if not fail and math.isfinite(nis_v):
+            self.checking, self.check_prev, self.initial_check = False, None, "accepted"
+            log.info("t=%.3f s: configured initial state accepted (position NIS %.2f, velocity NIS %.2f)",
+                     fix.t_ns / NS, nis, nis_v)
+        return False
+
+    def check_fused(self, nav, ctx, std_pos: np.ndarray, fused: bool) -> None:
+        """After the update of a fix under test (std_pos: its floored 1-sigma [m, NED]): the fix and, when fused, its
+        residual [m, NED] for the velocity test at the next fix."""
+        fix = ctx.fix
+        llh = np.asarray(fix.llh, dtype=float)
+        residual = None
+        if fused:
+            v_ant_n = antenna_velocity(nav.state, nav.lever_b, ctx.omega_ib_b)
+            residual = position_model(nav.state, nav.lever_b, llh, v_ant_n, ctx.age_s)[0]
+        self.check_prev = (int(fix.t_ns), llh, np.asarray(std_pos, dtype=float), residual)
+
+    def _reject_initial(self, nav, ctx, detail: str) -> bool:
+        """The first fixes contradict the configured initial state: discard it (position, velocity, attitude) and go
+        back to coarse alignment from the fixes, from this one on."""
+        t_ns = ctx.fix.t_ns
+        nav.counters["init_state_rejected"] += 1
+        self.initial_check = f"rejected: {detail}"
+        log.warning("t=%.3f s: configured initial state rejected, the first GNSS fixes contradict it (%s): coarse "
+                    "alignment from the fixes", t_ns / NS, detail)
+        s = nav.state
+        start = coarse_initial(replace(self.initial, euler=np.full(3, math.nan)))
+        s.vn, s.ve, s.vd = 0.0, 0.0, 0.0
+        s.q0, s.q1, s.q2, s.q3 = (float(x) for x in euler_to_quat(start.euler))
+        nav.start_filter(initial_covariance(start, self.config), t_ns)
+        self.coarse, self.checking, self.check_prev, self.method = True, False, None, ""
+        self.prev_track = None  # the coarse jump test has no dead-reckoned position to hold the fix against
+        self.tilt_std, self.tilt_source = UNKNOWN_ANGLE_STD, "none"
+        self.seg, self.rest, self.rest_prev = [0.0] * 7, [0.0] * 7, False
+        self._set_state(nav, AlignState.COARSE, t_ns, "initial state rejected")
+        ctx.coarse = True
+        return True
 
     def check_aligned(self, nav, t_ns: int) -> None:
         """'fine' -> 'aligned' once the heading 1-sigma is below align_heading_std (at a fused fix)."""
@@ -286,7 +379,8 @@ class Alignment:
 
     def status(self, nav) -> dict:
         return {"state": self.state, "method": self.method, "heading_std_rad": float(nav.std_att[2]),
-                "times_ns": dict(self.times), "tilt_source": self.tilt_source, "gyrocompass": self.gyrocompass_refusal}
+                "times_ns": dict(self.times), "tilt_source": self.tilt_source, "gyrocompass": self.gyrocompass_refusal,
+                "initial_state": self.initial_check}
 
     def get_state(self) -> dict:
         """Everything of the alignment that determines the engine's future output (plain, msgpack-safe)."""
@@ -295,7 +389,10 @@ class Alignment:
                 "times": dict(self.times), "tilt_std": float(self.tilt_std), "tilt_source": self.tilt_source,
                 "seg": [float(x) for x in self.seg], "rest": [float(x) for x in self.rest],
                 "rest_prev": bool(self.rest_prev),
-                "prev_track": None if track is None else [int(track[0]), track[1].tolist(), track[2].tolist()]}
+                "prev_track": None if track is None else [int(track[0]), track[1].tolist(), track[2].tolist()],
+                "checking": bool(self.checking), "initial_check": self.initial_check, "check_strike": self.check_strike,
+                "check_prev": None if self.check_prev is None else [int(self.check_prev[0])] + [
+                    None if x is None else x.tolist() for x in self.check_prev[1:]]}
 
     def set_state(self, st: dict) -> None:
         self.coarse, self.state, self.method = bool(st["coarse"]), AlignState(st["state"]), st["method"]
@@ -306,3 +403,8 @@ class Alignment:
         track = st["prev_track"]
         self.prev_track = None if track is None else (int(track[0]), np.array(track[1], dtype=float),
                                                       np.array(track[2], dtype=float))
+        self.checking, self.initial_check, self.check_strike = bool(st["checking"]), st["initial_check"], \
+            st["check_strike"]
+        prev = st["check_prev"]
+        self.check_prev = None if prev is None else (int(prev[0]), *(None if x is None else np.array(x, dtype=float)
+                                                                     for x in prev[1:]))

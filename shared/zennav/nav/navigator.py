@@ -27,14 +27,14 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import earth, kernels
 from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, GnssPosition, Measurement, build_sources
-from .alignment import Alignment
+from .alignment import Alignment, coarse_initial
 from .eskf import (
     ATT,
     BA,
@@ -107,12 +107,8 @@ class Navigator:
         self.config = config
         self.t_ns = int(initial.t_ns)
         coarse = not initial.heading_is_known()
-        if coarse:  # yaw 0 as a placeholder with the 1-sigma of an angle uniform in +-180 deg; so for an
-            # unknown (non-finite) roll or pitch, which in-motion alignment then takes as 0 / the climb angle
-            known = [math.isfinite(float(a)) for a in initial.euler[:2]]
-            euler = [float(a) if k else 0.0 for a, k in zip(initial.euler[:2], known)] + [0.0]
-            std = [float(e) if k else math.pi / math.sqrt(3.0) for e, k in zip(initial.std_euler[:2], known)]
-            initial = replace(initial, euler=np.array(euler), std_euler=np.array(std + [math.pi / math.sqrt(3.0)]))
+        if coarse:
+            initial = coarse_initial(initial)
         self.state = NavState.from_arrays(initial.llh, initial.v_n, euler_to_quat(initial.euler))
         self.gyro_bias = [float(x) for x in initial.gyro_bias]
         self.accel_bias = [float(x) for x in initial.accel_bias]
