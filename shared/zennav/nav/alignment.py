@@ -198,7 +198,8 @@ class Alignment:
         state: returns True, the engine is coarse again and the fix is for the coarse alignment."""
         fix, k, prev = ctx.fix, H.shape[1], self.check_prev
         thr = nav.gate_threshold(3)
-        pair = prev is not None and 0.0 < (dt := (fix.t_ns - prev[0]) / NS) <= self.config.outage_timeout_s
+        dt = math.inf if prev is None else (fix.t_ns - prev[0]) / NS
+        pair = 0.0 < dt <= self.config.outage_timeout_s  # the fix before was under test too, not long before
         nis = float(z @ np.linalg.solve(H @ nav.P[:k, :k] @ H.T + R, z))
         fail, nis_v = "", math.nan
         if nis > thr:
@@ -208,7 +209,7 @@ class Alignment:
             z_v, H_v = velocity_model(nav.state, nav.lever_b, ctx.omega_ib_b, np.asarray(fix.v_n, dtype=float))
             R_v = np.diag(np.square(np.maximum(fix.std_v_n, self.config.vel_std_floor_mps)))
             nis_v = float(z_v @ np.linalg.solve(H_v @ nav.P[:N_STATES, :N_STATES] @ H_v.T + R_v, z_v))
-        elif pair and prev[3] is not None:  # the INS's displacement since the last fix against the fixes'
+        elif pair and prev is not None and prev[3] is not None:  # INS displacement since the last fix vs the fixes
             z_v = (z - prev[3]) / dt
             nis_v = float(z_v @ np.linalg.solve(nav.P[VEL, VEL] + np.diag(np.diag(R) + prev[2] ** 2) / dt**2, z_v))
         if nis_v > thr:
