@@ -255,6 +255,12 @@ class Alignment:
         ctx.coarse = True
         return True
 
+    def monitored(self) -> bool:
+        """Whether the sources' consistency monitors run: once aligned, and in fine alignment after a coarse one. While
+        a given heading converges its steady innovations are its error; after a coarse alignment the whole attitude
+        (climb-angle pitch, roll 0) converges with the fixes, and a filter overconfident then traps and resets."""
+        return self.state == AlignState.ALIGNED or (self.state == AlignState.FINE and self.method != "given")
+
     def check_aligned(self, nav, t_ns: int) -> None:
         """'fine' -> 'aligned' once the heading 1-sigma is below align_heading_std (at a fused fix)."""
         if self.state == AlignState.FINE and nav.std_att[2] < self.config.align_heading_std:

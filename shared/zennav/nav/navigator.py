@@ -436,8 +436,8 @@ class Navigator:
             R = vb.update(z, H @ self.kf.P @ H.T, R, m.channels, gate)
         source.R_used = R
         reason, faults = "", list(m.faults)
-        # consistency monitoring once aligned: while the heading converges, steady innovations are its error
-        monitor = source.consistency if m.gated and self.alignment.state == AlignState.ALIGNED else None
+        # consistency monitoring once aligned or started by a coarse alignment (Alignment.monitored)
+        monitor = source.consistency if m.gated and self.alignment.monitored() else None
         if monitor is not None and (factor := monitor.factor(z, H @ self.kf.P @ H.T, R)) > 1.0:
             self.kf.P *= factor  # overconfident on small, steady innovations: fading memory (nav.consistency)
             self.counters[f"{name}_inflated"] += 1
