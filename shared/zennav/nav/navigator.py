@@ -50,7 +50,7 @@ from .eskf import (
 from .learning import LearningTap, LearnQuery, LearnSample
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_quat_xyz, rotvec_to_quat
 from .strapdown import NavState, mechanize
-from .types import NS, AlignState, GnssFix, GnssState, InitialState, NavConfig
+from .types import NS, GnssFix, GnssState, InitialState, NavConfig
 
 if TYPE_CHECKING:
     from .smoother import Recorder
