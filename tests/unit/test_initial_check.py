@@ -3,6 +3,7 @@ issue 18): a stale one (the data's start cut, the state left as it was) is rejec
 from the fixes; a correct one, and a correct one whose first fix is an outlier, are accepted."""
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 
@@ -105,3 +106,21 @@ def test_check_state_round_trips_through_get_state(drive):
     assert a.alignment.checking and a.alignment.check_strike.startswith("position NIS")
     b.set_state(a.get_state())
     assert b.get_state() == a.get_state()
+
+
+def test_replay_of_stale_kf_gins_files_says_so(drive, tmp_path):
+    """KF-GINS files whose starttime was moved CUT_S later with the initial state kept: the replay's GNSS line and
+    the status record (metrics.json) say that the state was rejected."""
+    from click.testing import CliRunner
+
+    from zennav.cli import main
+    from zennav.datasets import kfgins
+
+    stale = replace(drive, initial=replace(drive.initial, t_ns=drive.initial.t_ns + int(CUT_S * NS)))
+    yaml_path = kfgins.write_dataset(stale, tmp_path)
+    res = CliRunner().invoke(main, ["replay", str(yaml_path), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert "the configured initial state was rejected by the first fixes" in res.output
+    engine = json.loads((tmp_path / "out" / "metrics.json").read_text())["engine"]
+    assert engine["alignment"]["initial_state"].startswith("rejected: position NIS")
+    assert engine["counters"]["init_state_rejected"] == 1
