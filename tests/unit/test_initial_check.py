@@ -1,6 +1,7 @@
 """The configured initial state tested against the first GNSS fixes (zennav.nav.alignment, Alignment.check_initial,
 issue 18): a stale one (the data's start cut, the state left as it was) is rejected and the engine aligns in motion
-from the fixes; a correct one, and a correct one whose first fix is an outlier, are accepted."""
+from the fixes; a correct one, and a correct one whose first fix is an outlier, are accepted; one at rest waits for
+the first fixes in motion (a heading given wrong at rest: tests/unit/test_alignment.py)."""
 from __future__ import annotations
 
 import json
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from zennav.metrics import ned_errors
+from zennav.nav.alignment import AT_REST
 from zennav.nav.navigator import Navigator
 from zennav.nav.types import NS, Dataset, InitialState
 from zennav.replay import run_replay
@@ -70,11 +72,20 @@ def test_correct_initial_state_is_accepted(drive):
     assert horizontal_errors(ds, res).max() < 3.0
 
 
-def test_correct_state_without_gnss_velocity_is_accepted_by_the_fix_pair():
-    """The velocity test from the displacement between the first two fixes (no velocity in them)."""
-    ds = make_dataset("car", duration_s=20.0, imu_rate_hz=100.0, gnss_rate_hz=1.0, seed=2, gnss_vel_std=None)
+def test_correct_state_without_gnss_velocity_is_accepted_by_the_fix_pair(drive):
+    """The velocity test from the displacement between two fixes (no velocity in them)."""
+    ds = cut(drive, CUT_S, truth_state(drive, CUT_S))
+    ds.gnss = replace(ds.gnss, v_n=None, std_v_n=None)
     res = run_replay(ds)
     assert res.status["alignment"]["initial_state"] == "accepted"
+
+
+def test_state_at_rest_waits_for_motion():
+    """The simulated car stands still first: its state is consistent with the fixes at rest and tested again once
+    moving."""
+    ds = make_dataset("car", duration_s=20.0, imu_rate_hz=100.0, gnss_rate_hz=1.0, seed=2)
+    res = run_replay(ds)
+    assert res.status["alignment"]["initial_state"] == AT_REST
 
 
 def test_wrong_velocity_is_rejected_by_the_fixes_velocity(drive):

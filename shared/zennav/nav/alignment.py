@@ -15,14 +15,17 @@ the fix that starts the filter, 'aligned' once the heading 1-sigma is below alig
 A configured initial state (heading given) is tested against the first GNSS fixes before the filter trusts it
 (Alignment.check_initial): the normalised innovation squared (NIS) of the first fix's position, with S = H P H' + R
 from the configured 1-sigma (propagated to the fix) and the fix's own, and of the antenna velocity (the fix's
-velocity, else the displacement between the first two fixes against the INS's over the same interval), each
-against the chi-square quantile of the engine's gate (gate_probability) on 3 degrees of freedom (the NIS test of
-Bar-Shalom, Li & Kirubarajan 2001, "Estimation with applications to tracking and navigation", sec. 5.4; Groves
-2013 section 17.3.1, innovation-based outlier detection, applied to the initial state rather than the fix). A state
-the fixes contradict (e.g. a file's start cut without moving its initial state) is discarded, counted
-init_state_rejected and logged: the engine goes back to coarse alignment from the fixes with position, velocity
-and attitude unknown, as if no initial state had been configured (the biases and their 1-sigma are kept). A state
-that passes changes nothing.
+velocity, else the displacement between two fixes against the INS's over the same interval), each against the
+chi-square quantile of the engine's gate (gate_probability) on 3 degrees of freedom (the NIS test of Bar-Shalom, Li &
+Kirubarajan 2001, "Estimation with applications to tracking and navigation", sec. 5.4; Groves 2013 section 17.3.1,
+innovation-based outlier detection, applied to the initial state rather than the fix). Two fixes in a row must fail
+(one outlier fix is left to the gate). At rest the fixes see no heading: a state consistent with them there is
+tested again at the first fixes in motion (horizontal speed of the fixes at least align_min_speed_mps), where a
+wrong heading shows as a velocity (then position) innovation; it is accepted once such a pair passes. A state the
+fixes contradict (a file's start cut without moving its initial state, a heading given wrong) is discarded, counted
+init_state_rejected and logged: the engine goes back to coarse alignment from the fixes with position, velocity and
+attitude unknown, as if no initial state had been configured (the biases and their 1-sigma are kept). A state that
+passes changes nothing.
 In motion (seed 002 step S3-1; Groves 2013 section 14.4.2): with the GNSS velocity v_n of a vehicle whose
 body x axis moves along its velocity (land vehicles, fixed-wing aircraft): yaw = atan2(v_E, v_N) and
 pitch = atan2(-v_D, sqrt(v_N^2 + v_E^2)) (the climb angle); roll 0 with a large variance for ground vehicles.
@@ -128,6 +131,7 @@ def course_alignment(v_n, std_v_n, course_std: float, tilt_std: float) -> tuple[
 
 
 UNKNOWN_ANGLE_STD = math.pi / math.sqrt(3.0)  # 1-sigma [rad] of an angle uniform in +-180 deg
+AT_REST = "consistent at rest (tested again once moving)"  # Alignment.initial_check of a state so far
 
 
 def coarse_initial(initial: InitialState) -> InitialState:
@@ -151,7 +155,7 @@ class Alignment:
     [ns] each state was entered. checking: a configured initial state is under test (check_initial); check_prev:
     (t_ns, llh, std_ned, residual after its update [m, NED] or None when not fused) of the last fix under test;
     check_strike: why that fix failed the test ("" passed); initial_check: what the test found ("" while untested or
-    without a configured state, "accepted", or "rejected: " and why)."""
+    without a configured state, AT_REST, "accepted", or "rejected: " and why)."""
 
     def __init__(self, config: NavConfig, initial: InitialState, coarse: bool):
         self.config = config
@@ -195,33 +199,53 @@ class Alignment:
         """Test the configured initial state at a fix (ctx: zennav.nav.aid.FixContext; z, H, R: the fix's position
         innovation [m, NED], its H and R) before its update (see the module docstring). A failed test is a strike (the
         fix goes on to the normal gate); a second in a row, the fixes at most outage_timeout_s apart, rejects the
-        state: returns True, the engine is coarse again and the fix is for the coarse alignment."""
-        fix, k, prev = ctx.fix, H.shape[1], self.check_prev
-        thr = nav.gate_threshold(3)
+        state: returns True, the engine is coarse again and the fix is for the coarse alignment. A state consistent
+        with fixes at rest is tested again at the first fixes in motion (a heading is seen only then)."""
+        fix, k, prev, cfg = ctx.fix, H.shape[1], self.check_prev, self.config
         dt = math.inf if prev is None else (fix.t_ns - prev[0]) / NS
-        pair = 0.0 < dt <= self.config.outage_timeout_s  # the fix before was under test too, not long before
+        pair = 0.0 < dt <= cfg.outage_timeout_s  # the fix before was under test too, not long before
+        vel = self._check_velocity(nav, ctx, z, R, prev if pair else None)
+        v_fix = None if vel is None else vel[0]
+        moving = v_fix is not None and math.hypot(v_fix[0], v_fix[1]) >= cfg.align_min_speed_mps
+        if self.initial_check == AT_REST and not moving:  # nothing new to test until it moves
+            self.check_strike = ""
+            return False
+        thr = nav.gate_threshold(3)
         nis = float(z @ np.linalg.solve(H @ nav.P[:k, :k] @ H.T + R, z))
-        fail, nis_v = "", math.nan
+        nis_v = math.nan if vel is None else float(vel[1] @ np.linalg.solve(vel[2], vel[1]))
+        fail = ""
         if nis > thr:
             fail = f"position NIS {nis:.1f} > {thr:.1f}, innovation {np.round(z, 2)} m"
-        elif fix.v_n is not None and self.config.use_gnss_velocity:  # the fix's velocity
-            assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
-            z_v, H_v = velocity_model(nav.state, nav.lever_b, ctx.omega_ib_b, np.asarray(fix.v_n, dtype=float))
-            R_v = np.diag(np.square(np.maximum(fix.std_v_n, self.config.vel_std_floor_mps)))
-            nis_v = float(z_v @ np.linalg.solve(H_v @ nav.P[:N_STATES, :N_STATES] @ H_v.T + R_v, z_v))
-        elif pair and prev is not None and prev[3] is not None:  # INS displacement since the last fix vs the fixes
-            z_v = (z - prev[3]) / dt
-            nis_v = float(z_v @ np.linalg.solve(nav.P[VEL, VEL] + np.diag(np.diag(R) + prev[2] ** 2) / dt**2, z_v))
-        if nis_v > thr:
-            fail = f"velocity NIS {nis_v:.1f} > {thr:.1f}, innovation {np.round(z_v, 2)} m/s"
+        elif nis_v > thr:
+            fail = f"velocity NIS {nis_v:.1f} > {thr:.1f}, innovation {np.round(vel[1], 2)} m/s"
         if fail and self.check_strike and pair:
             return self._reject_initial(nav, ctx, f"{self.check_strike}; then {fail}")
         self.check_strike = fail
-        if not fail and math.isfinite(nis_v):
-            self.checking, self.check_prev, self.initial_check = False, None, "accepted"
-            log.info("t=%.3f s: configured initial state accepted (position NIS %.2f, velocity NIS %.2f)",
-                     fix.t_ns / NS, nis, nis_v)
+        if not fail and vel is not None:
+            if moving:
+                self.checking, self.check_prev, self.initial_check = False, None, "accepted"
+                log.info("t=%.3f s: configured initial state accepted (position NIS %.2f, velocity NIS %.2f)",
+                         fix.t_ns / NS, nis, nis_v)
+            else:
+                self.initial_check = AT_REST
         return False
+
+    def _check_velocity(self, nav, ctx, z: np.ndarray, R: np.ndarray, prev: tuple | None):
+        """(v_fix, z_v, S_v): the antenna velocity of the fixes [m/s, NED], the INS's minus it and its covariance, from
+        the fix's velocity, else from the displacement since prev (the fix before, (t_ns, llh, std_ned, residual)
+        or None) against the INS's since its update; None when neither is there."""
+        cfg, fix = self.config, ctx.fix
+        if fix.v_n is not None and cfg.use_gnss_velocity:
+            assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
+            v_fix = np.asarray(fix.v_n, dtype=float)
+            z_v, H_v = velocity_model(nav.state, nav.lever_b, ctx.omega_ib_b, v_fix)
+            R_v = np.diag(np.square(np.maximum(fix.std_v_n, cfg.vel_std_floor_mps)))
+            return v_fix, z_v, H_v @ nav.P[:N_STATES, :N_STATES] @ H_v.T + R_v
+        if prev is None or prev[3] is None:
+            return None
+        dt = (fix.t_ns - prev[0]) / NS
+        v_fix = earth.llh_to_ned(np.asarray(fix.llh, dtype=float), prev[1]) / dt
+        return v_fix, (z - prev[3]) / dt, nav.P[VEL, VEL] + np.diag(np.diag(R) + prev[2] ** 2) / dt**2
 
     def check_fused(self, nav, ctx, std_pos: np.ndarray, fused: bool) -> None:
         """After the update of a fix under test (std_pos: its floored 1-sigma [m, NED]): the fix and, when fused, its

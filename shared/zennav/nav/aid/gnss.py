@@ -3,9 +3,9 @@ outage declaration and recovery; during coarse alignment it hands the fix to the
 velocity. Models in zennav.nav.aiding; the fix is fused at its own time (the engine splits the IMU interval).
 
 Faults, each rejection counted under its reason and reported:
-- initial state (init_state_rejected): while a configured initial state is under test, each fix is first tested
-  against it (zennav.nav.alignment, Alignment.check_initial); two contradicting fixes in a row send the engine back
-  to coarse alignment, the second one tracked;
+- initial state (init_state_rejected): while a configured initial state is under test (its first fixes, and its
+  first fixes in motion), each fix is first tested against it (zennav.nav.alignment, Alignment.check_initial); two
+  contradicting fixes in a row send the engine back to coarse alignment, the second one tracked;
 - input: gnss_malformed, gnss_duplicate, gnss_out_of_order, gnss_fix_quality, gnss_few_satellites, gnss_std,
   gnss_stale (older than MAX_FIX_AGE_S behind the IMU);
 - jump (gnss_pos_jump): further than max_jump_m horizontally from the INS prediction and outside the chi-square
