@@ -259,8 +259,8 @@ class Alignment:
         self.check_prev = (int(fix.t_ns), llh, np.asarray(std_pos, dtype=float), residual)
 
     def _reject_initial(self, nav, ctx, detail: str) -> bool:
-        """The first fixes contradict the configured initial state: discard it (position, velocity, attitude) and go
-        back to coarse alignment from the fixes, from this one on."""
+        """Two fixes in a row contradict the configured initial state: discard it (position, velocity, attitude) and
+        go back to coarse alignment from the fixes, from this one on."""
         t_ns = ctx.fix.t_ns
         nav.counters["init_state_rejected"] += 1
         self.initial_check = f"rejected: {detail}"
