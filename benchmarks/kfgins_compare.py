@@ -6,6 +6,11 @@ Two cases:
   noise (issue 18: a KF-GINS user's configuration), position fixes only (KF-GINS fuses no GNSS velocity).
 - ``uav``: the simulated multirotor (zennav.sim, 5 Hz GNSS) in KF-GINS files; full GNSS and 30/60/120 s outages.
 
+``--stale S`` (repeatable) adds a full-GNSS row whose configuration starts S seconds later but keeps the initial
+state of the original start (a user who cuts the start of a file and forgets the initial state; issue 18): zennav
+tests the configured state against the first fixes (zennav.nav.alignment) and aligns from the fixes when they
+contradict it. Its row also gives the horizontal RMS from the filter's start after that alignment ("after align").
+
 Outages are applied the same way to both programs: the GNSS epochs inside the windows are left out of the GNSS
 file; zennav's windows (zennav.replay.outage_windows, from the run's first IMU sample) decide which, and both
 solutions are scored by zennav.metrics.evaluate against the same truth. zennav runs as ``zennav replay`` does
@@ -13,6 +18,7 @@ solutions are scored by zennav.metrics.evaluate against the same truth. zennav r
 
     python benchmarks/kfgins_compare.py --kf-gins /tmp/kfgins/bin/KF-GINS rtk
     python benchmarks/kfgins_compare.py --kf-gins /tmp/kfgins/bin/KF-GINS uav --outage 30 --outage 60
+    python benchmarks/kfgins_compare.py rtk --stale 5 --stale 20 --stale 60
 
 Without --kf-gins only zennav runs. KF-GINS builds from its public source with its bundled third-party libraries
 (Eigen 3.3.9, yaml-cpp 0.7.0, abseil): ``cmake -S KF-GINS -B KF-GINS/build -DCMAKE_BUILD_TYPE=Release && make -C
@@ -31,7 +37,7 @@ import numpy as np
 
 from zennav.datasets import kfgins, rtklibexplorer
 from zennav.datasets.registry import load_dataset
-from zennav.metrics import evaluate
+from zennav.metrics import antenna_llh, evaluate, ned_errors
 from zennav.nav.rotation import euler_to_quat
 from zennav.nav.types import NS, Dataset
 from zennav.params import load_filter_params, nav_config
@@ -55,12 +61,14 @@ def uav_case(seed: int = 0, velocity: bool = False) -> Dataset:
     return ds
 
 
-def export(ds: Dataset, folder: Path, windows: list[tuple[int, int]]) -> Path:
-    """KF-GINS files of ds in folder by the product's writer, without the GNSS epochs inside windows; the YAML."""
+def export(ds: Dataset, folder: Path, windows: list[tuple[int, int]], stale_s: float = 0.0) -> Path:
+    """KF-GINS files of ds in folder by the product's writer, without the GNSS epochs inside windows; the YAML.
+    stale_s [s]: the YAML's starttime that much later, its initial state still that of ds's start."""
     keep = np.ones(len(ds.gnss), dtype=bool)
     for a, b in windows:
         keep &= ~((ds.gnss.t_ns >= a) & (ds.gnss.t_ns < b))
-    written = replace(ds, gnss=ds.gnss.slice(keep))
+    initial = replace(ds.initial, t_ns=ds.initial.t_ns + int(stale_s * NS))
+    written = replace(ds, gnss=ds.gnss.slice(keep), initial=initial)
     return kfgins.write_dataset(written, folder, "run")
 
 
@@ -70,7 +78,15 @@ def run_zennav(yaml_path: Path, windows, params: Path | None) -> dict:
     ds.config = nav_config(ds.config, load_filter_params(params))
     res = run_replay(ds)
     res.windows = windows
-    return evaluate(ds, res)
+    metrics = evaluate(ds, res)
+    times = res.status["alignment"]["times_ns"]
+    if "coarse" in times and ds.truth is not None:  # the filter started after a coarse alignment: RMS from its start
+        t = ds.truth.t_ns
+        sel = (t >= times["fine"]) & (t <= res.t_ns[-1])
+        k = np.searchsorted(res.t_ns, t[sel])
+        e = ned_errors(antenna_llh(res.llh[k], res.q_nb[k], ds.config.lever_arm_b), ds.truth.llh[sel])
+        metrics["horizontal_rms_after_align_m"] = float(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2)))
+    return metrics
 
 
 def run_kfgins(binary: Path, yaml_path: Path, windows) -> dict:
@@ -91,13 +107,15 @@ def run_kfgins(binary: Path, yaml_path: Path, windows) -> dict:
     return evaluate(ds, res)
 
 
-def compare(ds: Dataset, outage_s: float | None, kf_gins: Path | None, params: Path | None, every_s: float) -> dict:
-    """Both programs on ds with outages of outage_s seconds every every_s seconds (None: full GNSS)."""
-    t0 = int(ds.initial.t_ns)
+def compare(ds: Dataset, outage_s: float | None, kf_gins: Path | None, params: Path | None, every_s: float,
+            stale_s: float = 0.0) -> dict:
+    """Both programs on ds with outages of outage_s seconds every every_s seconds (None: full GNSS); stale_s: the
+    files' start that much later with ds's initial state (export)."""
+    t0 = int(ds.initial.t_ns) + int(stale_s * NS)
     windows = [] if outage_s is None else outage_windows(t0, run_end_ns(ds), every=(every_s, outage_s,
                                                                                   every_s - outage_s))
     with tempfile.TemporaryDirectory(prefix="kfgins_compare_") as tmp:
-        yaml_path = export(ds, Path(tmp), windows)
+        yaml_path = export(ds, Path(tmp), windows, stale_s)
         week_ns = int(ds.imu.t_ns[0] // kfgins.WEEK_NS) * kfgins.WEEK_NS  # the files' times: seconds of week
         windows = [(a - week_ns, b - week_ns) for a, b in windows]
         out = {"zennav": run_zennav(yaml_path, windows, params)}
@@ -115,7 +133,9 @@ def print_rows(label: str, result: dict) -> None:
         print(f"{label:<14} {program:<8} h_rms {_fmt(m['horizontal_rms_m']):>8} m"
               f"  v_rms {_fmt(m['vertical_rms_m']):>7} m"
               f"  outage max drift RMS {_fmt(m['outage_max_horizontal_rms_m']):>8} m"
-              f"  max {_fmt(m['outage_max_horizontal_max_m']):>8} m  ({len(m['outages'])} windows)")
+              f"  max {_fmt(m['outage_max_horizontal_max_m']):>8} m  ({len(m['outages'])} windows)"
+              + (f"  after align {m['horizontal_rms_after_align_m']:.3f} m" if "horizontal_rms_after_align_m" in m
+                 else ""))
         counters = m["engine"].get("counters") if m.get("engine") else None
         if counters:
             shown = {k: v for k, v in sorted(counters.items()) if not k.endswith("_fused")}
@@ -125,6 +145,9 @@ def print_rows(label: str, result: dict) -> None:
         monitor = m["engine"].get("consistency") if m.get("engine") else None
         if monitor:
             print(f"{'':<14} {'':<8} consistency {monitor}")
+        initial = m["engine"]["alignment"].get("initial_state") if m.get("engine") else None
+        if initial:
+            print(f"{'':<14} {'':<8} initial state {initial}")
 
 
 def main(argv=None) -> int:
@@ -137,11 +160,16 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=float, default=None, help="outage period [s] (default: 4 x the outage, >= 60 s)")
     ap.add_argument("--seed", type=int, default=0, help="simulator seed of the uav case")
     ap.add_argument("--velocity", action="store_true", help="uav case: GNSS velocity in the files (zennav only)")
+    ap.add_argument("--stale", type=float, action="append", default=[],
+                    help="also full GNSS with the files' start this many seconds later and the initial state of the "
+                         "original start (repeatable)")
     args = ap.parse_args(argv)
     ds = rtk_case() if args.case == "rtk" else uav_case(args.seed, args.velocity)
     outages = args.outage if args.outage is not None else ([] if args.case == "rtk" else [30.0, 60.0, 120.0])
     print(f"{ds.name}: {(run_end_ns(ds) - ds.initial.t_ns) / NS:.0f} s, IMU noise {ds.config.imu_noise}")
     print_rows("full GNSS", compare(ds, None, args.kf_gins, args.params, 0.0))
+    for stale in args.stale:
+        print_rows(f"stale +{stale:g}s", compare(ds, None, args.kf_gins, args.params, 0.0, stale))
     for dur in outages:
         every = args.every or max(60.0, 4.0 * dur)
         print_rows(f"outage {dur:.0f}s/{every:.0f}s", compare(ds, dur, args.kf_gins, args.params, every))

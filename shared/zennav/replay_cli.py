@@ -154,7 +154,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
 
 def _gnss_summary(counters: dict) -> str:
     """One line on the GNSS fixes: fused, refused per reason (zennav.nav.aid.gnss's counters), gate resets and
-    outages, so that a run whose fixes were refused says so beside its table."""
+    outages, and a configured initial state the first fixes rejected, so that a run whose fixes were refused says so
+    beside its table."""
     fused = {k[5:-6]: n for k, n in counters.items() if k.startswith("gnss_") and k.endswith("_fused")}
     skip = ("_fused", "_inflated")
     refused = {k[5:]: n for k, n in counters.items()
@@ -162,7 +163,10 @@ def _gnss_summary(counters: dict) -> str:
     text = "GNSS fused: " + (", ".join(f"{k} {n}" for k, n in fused.items()) or "none")
     text += "; refused: " + (", ".join(f"{k} {n}" for k, n in sorted(refused.items())) or "none")
     resets, outages = counters.get("gate_reset", 0), counters.get("outage_declared", 0)
-    return text + f"; gate resets {resets}, outages declared {outages}"
+    text += f"; gate resets {resets}, outages declared {outages}"
+    if counters.get("init_state_rejected"):  # zennav.nav.alignment: the first fixes contradicted it
+        text += "; the configured initial state was rejected by the first fixes (aligned from the fixes instead)"
+    return text
 
 
 def _learning_summary(compensation: dict, engine_counters: dict) -> str:

@@ -277,7 +277,7 @@ def _status(**extra):
 
 
 GOOD_AL = {"state": "fine", "method": "in_motion", "heading_std_rad": 0.02, "times_ns": {"coarse": 1, "fine": 3},
-           "tilt_source": "levelling", "gyrocompass": ""}
+           "tilt_source": "levelling", "gyrocompass": "", "initial_state": "accepted"}
 GOOD_R = {"gnss_pos": {"R_diag": [1.0, 1.0, 4.0], "ratio": [1.5, 1.5, 1.0], "branch": "fading", "k": 30,
                        "inflate": 0, "fading": 10},
           "gnss_vel": {"R_diag": [0.01] * 3, "ratio": None, "branch": "fixed"}}
@@ -286,6 +286,7 @@ GOOD_R = {"gnss_pos": {"R_diag": [1.0, 1.0, 4.0], "ratio": [1.5, 1.5, 1.0], "bra
 @pytest.mark.parametrize("mutate, code", [
     (lambda m: m["alignment"].update(state="done"), "bad_value"),
     (lambda m: m["alignment"].update(method=3), "bad_type"),
+    (lambda m: m["alignment"].update(initial_state=None), "bad_type"),
     (lambda m: m["alignment"].update(heading_std_rad=-1.0), "bad_value"),
     (lambda m: m["alignment"].update(times_ns={"coarse": 1.5}), "bad_value"),
     (lambda m: m["alignment"].update(heading_std_rad=float("nan")), "not_finite"),

@@ -12,6 +12,20 @@ omega_ib_b = C_bn omega_ie_n with omega_ie_n = Omega (cos L, 0, -sin L):
   a gyro whose bias is well below the horizontal earth rate (about 15 cos L deg/h): refused otherwise.
 The engine's alignment state machine (class Alignment): 'coarse' while the heading is unknown, then 'fine' from
 the fix that starts the filter, 'aligned' once the heading 1-sigma is below align_heading_std.
+A configured initial state (heading given) is tested against the first GNSS fixes before the filter trusts it
+(Alignment.check_initial): the normalised innovation squared (NIS) of the first fix's position, with S = H P H' + R
+from the configured 1-sigma (propagated to the fix) and the fix's own, and of the antenna velocity (the fix's
+velocity, else the displacement between two fixes against the INS's over the same interval), each against the
+chi-square quantile of the engine's gate (gate_probability) on 3 degrees of freedom (the NIS test of Bar-Shalom, Li &
+Kirubarajan 2001, "Estimation with applications to tracking and navigation", sec. 5.4; Groves 2013 section 17.3.1,
+innovation-based outlier detection, applied to the initial state rather than the fix). Two fixes in a row must fail
+(one outlier fix is left to the gate). At rest the fixes see no heading: a state consistent with them there is
+tested again at the first fixes in motion (horizontal speed of the fixes at least align_min_speed_mps), where a
+wrong heading shows as a velocity (then position) innovation; it is accepted once such a pair passes. A state the
+fixes contradict (a file's start cut without moving its initial state, a heading given wrong) is discarded, counted
+init_state_rejected and logged: the engine goes back to coarse alignment from the fixes with position, velocity and
+attitude unknown, as if no initial state had been configured (the biases and their 1-sigma are kept). A state that
+passes changes nothing.
 In motion (seed 002 step S3-1; Groves 2013 section 14.4.2): with the GNSS velocity v_n of a vehicle whose
 body x axis moves along its velocity (land vehicles, fixed-wing aircraft): yaw = atan2(v_E, v_N) and
 pitch = atan2(-v_D, sqrt(v_N^2 + v_E^2)) (the climb angle); roll 0 with a large variance for ground vehicles.
@@ -27,7 +41,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import earth
-from .aiding import antenna_velocity, position_model
+from .aiding import antenna_velocity, position_model, velocity_model
 from .eskf import N_STATES, POS, VEL, initial_covariance
 from .rotation import euler_to_quat, quat_to_euler
 from .types import NS, AlignState, GnssFix, ImuNoise, InitialState, NavConfig
@@ -116,6 +130,19 @@ def course_alignment(v_n, std_v_n, course_std: float, tilt_std: float) -> tuple[
     return np.array([0.0, pitch, yaw]), np.array([tilt_std, pitch_std, yaw_std])
 
 
+UNKNOWN_ANGLE_STD = math.pi / math.sqrt(3.0)  # 1-sigma [rad] of an angle uniform in +-180 deg
+AT_REST = "consistent at rest (tested again once moving)"  # Alignment.initial_check of a state so far
+
+
+def coarse_initial(initial: InitialState) -> InitialState:
+    """The engine's start state for coarse alignment: yaw 0 as a placeholder with the 1-sigma of an unknown angle; so
+    for an unknown (non-finite) roll or pitch, which in-motion alignment then takes as 0 / the climb angle."""
+    known = [math.isfinite(float(a)) for a in initial.euler[:2]]
+    euler = [float(a) if k else 0.0 for a, k in zip(initial.euler[:2], known)] + [0.0]
+    std = [float(e) if k else UNKNOWN_ANGLE_STD for e, k in zip(initial.std_euler[:2], known)]
+    return replace(initial, euler=np.array(euler), std_euler=np.array(std + [UNKNOWN_ANGLE_STD]))
+
+
 class Alignment:
     """Coarse alignment of the engine and the alignment state machine (see the module docstring). With the
     heading unknown the engine is ``coarse``: it integrates the attitude only, holds the last GNSS velocity and
@@ -125,7 +152,10 @@ class Alignment:
     initial: the engine's initial state (yaw 0 placeholder when coarse); tilt_std: roll/pitch 1-sigma [rad] and
     tilt_source where it came from; seg / rest: angle [rad], velocity [m/s] increments and time [s] since the last
     fix / summed over the current rest; prev_track: (t_ns, llh, std_ned) of the last tracked fix; times: data time
-    [ns] each state was entered."""
+    [ns] each state was entered. checking: a configured initial state is under test (check_initial); check_prev:
+    (t_ns, llh, std_ned, residual after its update [m, NED] or None when not fused) of the last fix under test;
+    check_strike: why that fix failed the test ("" passed); initial_check: what the test found ("" while untested or
+    without a configured state, AT_REST, "accepted", or "rejected: " and why)."""
 
     def __init__(self, config: NavConfig, initial: InitialState, coarse: bool):
         self.config = config
@@ -142,6 +172,10 @@ class Alignment:
         self.times: dict[str, int] = {}
         self.method = "" if coarse else "given"
         self.state = AlignState.COARSE
+        self.checking = not coarse and config.gate_probability > 0.0
+        self.check_prev: tuple | None = None
+        self.check_strike = ""
+        self.initial_check = ""
 
     def start(self, nav) -> None:
         """Enter the first state at the engine's start time."""
@@ -160,6 +194,96 @@ class Alignment:
         self.times[str(state)] = int(t_ns)
         log.info("alignment %s at t=%.3f s (%s), heading 1-sigma %.2f deg", state, t_ns / NS, detail,
                  math.degrees(math.sqrt(nav.P[8, 8])))
+
+    def check_initial(self, nav, ctx, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> bool:
+        """Test the configured initial state at a fix (ctx: zennav.nav.aid.FixContext; z, H, R: the fix's position
+        innovation [m, NED], its H and R) before its update (see the module docstring). A failed test is a strike (the
+        fix goes on to the normal gate); a second in a row, the fixes at most outage_timeout_s apart, rejects the
+        state: returns True, the engine is coarse again and the fix is for the coarse alignment. A state consistent
+        with fixes at rest is tested again at the first fixes in motion (a heading is seen only then)."""
+        fix, k, prev, cfg = ctx.fix, H.shape[1], self.check_prev, self.config
+        dt = math.inf if prev is None else (fix.t_ns - prev[0]) / NS
+        pair = 0.0 < dt <= cfg.outage_timeout_s  # the fix before was under test too, not long before
+        vel = self._check_velocity(nav, ctx, z, R, prev if pair else None)
+        v_fix = None if vel is None else vel[0]
+        moving = v_fix is not None and math.hypot(v_fix[0], v_fix[1]) >= cfg.align_min_speed_mps
+        if self.initial_check == AT_REST and not moving:  # nothing new to test until it moves
+            self.check_strike = ""
+            return False
+        thr = nav.gate_threshold(3)
+        nis = float(z @ np.linalg.solve(H @ nav.P[:k, :k] @ H.T + R, z))
+        nis_v = math.nan if vel is None else float(vel[1] @ np.linalg.solve(vel[2], vel[1]))
+        fail = ""
+        if nis > thr:
+            fail = f"position NIS {nis:.1f} > {thr:.1f}, innovation {np.round(z, 2)} m"
+        elif nis_v > thr:
+            fail = f"velocity NIS {nis_v:.1f} > {thr:.1f}, innovation {np.round(vel[1], 2)} m/s"
+        if fail and self.check_strike and pair:
+            return self._reject_initial(nav, ctx, f"{self.check_strike}; then {fail}")
+        self.check_strike = fail
+        if not fail and vel is not None:
+            if moving:
+                self.checking, self.check_prev, self.initial_check = False, None, "accepted"
+                log.info("t=%.3f s: configured initial state accepted (position NIS %.2f, velocity NIS %.2f)",
+                         fix.t_ns / NS, nis, nis_v)
+            else:
+                self.initial_check = AT_REST
+        return False
+
+    def _check_velocity(self, nav, ctx, z: np.ndarray, R: np.ndarray, prev: tuple | None):
+        """(v_fix, z_v, S_v): the antenna velocity of the fixes [m/s, NED], the INS's minus it and its covariance, from
+        the fix's velocity, else from the displacement since prev (the fix before, (t_ns, llh, std_ned, residual)
+        or None) against the INS's since its update; None when neither is there."""
+        cfg, fix = self.config, ctx.fix
+        if fix.v_n is not None and cfg.use_gnss_velocity:
+            assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
+            v_fix = np.asarray(fix.v_n, dtype=float)
+            z_v, H_v = velocity_model(nav.state, nav.lever_b, ctx.omega_ib_b, v_fix)
+            R_v = np.diag(np.square(np.maximum(fix.std_v_n, cfg.vel_std_floor_mps)))
+            return v_fix, z_v, H_v @ nav.P[:N_STATES, :N_STATES] @ H_v.T + R_v
+        if prev is None or prev[3] is None:
+            return None
+        dt = (fix.t_ns - prev[0]) / NS
+        v_fix = earth.llh_to_ned(np.asarray(fix.llh, dtype=float), prev[1]) / dt
+        return v_fix, (z - prev[3]) / dt, nav.P[VEL, VEL] + np.diag(np.diag(R) + prev[2] ** 2) / dt**2
+
+    def check_fused(self, nav, ctx, std_pos: np.ndarray, fused: bool) -> None:
+        """After the update of a fix under test (std_pos: its floored 1-sigma [m, NED]): the fix and, when fused, its
+        residual [m, NED] for the velocity test at the next fix."""
+        fix = ctx.fix
+        llh = np.asarray(fix.llh, dtype=float)
+        residual = None
+        if fused:
+            v_ant_n = antenna_velocity(nav.state, nav.lever_b, ctx.omega_ib_b)
+            residual = position_model(nav.state, nav.lever_b, llh, v_ant_n, ctx.age_s)[0]
+        self.check_prev = (int(fix.t_ns), llh, np.asarray(std_pos, dtype=float), residual)
+
+    def _reject_initial(self, nav, ctx, detail: str) -> bool:
+        """Two fixes in a row contradict the configured initial state: discard it (position, velocity, attitude) and
+        go back to coarse alignment from the fixes, from this one on."""
+        t_ns = ctx.fix.t_ns
+        nav.counters["init_state_rejected"] += 1
+        self.initial_check = f"rejected: {detail}"
+        log.warning("t=%.3f s: configured initial state rejected, the first GNSS fixes contradict it (%s): coarse "
+                    "alignment from the fixes", t_ns / NS, detail)
+        s = nav.state
+        start = coarse_initial(replace(self.initial, euler=np.full(3, math.nan)))
+        s.vn, s.ve, s.vd = 0.0, 0.0, 0.0
+        s.q0, s.q1, s.q2, s.q3 = (float(x) for x in euler_to_quat(start.euler))
+        nav.start_filter(initial_covariance(start, self.config), t_ns)
+        self.coarse, self.checking, self.check_prev, self.method = True, False, None, ""
+        self.prev_track = None  # the coarse jump test has no dead-reckoned position to hold the fix against
+        self.tilt_std, self.tilt_source = UNKNOWN_ANGLE_STD, "none"
+        self.seg, self.rest, self.rest_prev = [0.0] * 7, [0.0] * 7, False
+        self._set_state(nav, AlignState.COARSE, t_ns, "initial state rejected")
+        ctx.coarse = True
+        return True
+
+    def monitored(self) -> bool:
+        """Whether the sources' consistency monitors run: once aligned, and in fine alignment after a coarse one. While
+        a given heading converges its steady innovations are its error; after a coarse alignment the whole attitude
+        (climb-angle pitch, roll 0) converges with the fixes, and a filter overconfident then traps and resets."""
+        return self.state == AlignState.ALIGNED or (self.state == AlignState.FINE and self.method != "given")
 
     def check_aligned(self, nav, t_ns: int) -> None:
         """'fine' -> 'aligned' once the heading 1-sigma is below align_heading_std (at a fused fix)."""
@@ -286,7 +410,8 @@ class Alignment:
 
     def status(self, nav) -> dict:
         return {"state": self.state, "method": self.method, "heading_std_rad": float(nav.std_att[2]),
-                "times_ns": dict(self.times), "tilt_source": self.tilt_source, "gyrocompass": self.gyrocompass_refusal}
+                "times_ns": dict(self.times), "tilt_source": self.tilt_source, "gyrocompass": self.gyrocompass_refusal,
+                "initial_state": self.initial_check}
 
     def get_state(self) -> dict:
         """Everything of the alignment that determines the engine's future output (plain, msgpack-safe)."""
@@ -295,7 +420,10 @@ class Alignment:
                 "times": dict(self.times), "tilt_std": float(self.tilt_std), "tilt_source": self.tilt_source,
                 "seg": [float(x) for x in self.seg], "rest": [float(x) for x in self.rest],
                 "rest_prev": bool(self.rest_prev),
-                "prev_track": None if track is None else [int(track[0]), track[1].tolist(), track[2].tolist()]}
+                "prev_track": None if track is None else [int(track[0]), track[1].tolist(), track[2].tolist()],
+                "checking": bool(self.checking), "initial_check": self.initial_check, "check_strike": self.check_strike,
+                "check_prev": None if self.check_prev is None else [int(self.check_prev[0])] + [
+                    None if x is None else x.tolist() for x in self.check_prev[1:]]}
 
     def set_state(self, st: dict) -> None:
         self.coarse, self.state, self.method = bool(st["coarse"]), AlignState(st["state"]), st["method"]
@@ -306,3 +434,8 @@ class Alignment:
         track = st["prev_track"]
         self.prev_track = None if track is None else (int(track[0]), np.array(track[1], dtype=float),
                                                       np.array(track[2], dtype=float))
+        self.checking, self.initial_check, self.check_strike = bool(st["checking"]), st["initial_check"], \
+            st["check_strike"]
+        prev = st["check_prev"]
+        self.check_prev = None if prev is None else (int(prev[0]), *(None if x is None else np.array(x, dtype=float)
+                                                                     for x in prev[1:]))

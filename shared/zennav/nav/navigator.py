@@ -27,14 +27,14 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import earth, kernels
 from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, GnssPosition, Measurement, build_sources
-from .alignment import Alignment
+from .alignment import Alignment, coarse_initial
 from .eskf import (
     ATT,
     BA,
@@ -50,7 +50,7 @@ from .eskf import (
 from .learning import LearningTap, LearnQuery, LearnSample
 from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_quat_xyz, rotvec_to_quat
 from .strapdown import NavState, mechanize
-from .types import NS, AlignState, GnssFix, GnssState, InitialState, NavConfig
+from .types import NS, GnssFix, GnssState, InitialState, NavConfig
 
 if TYPE_CHECKING:
     from .smoother import Recorder
@@ -60,7 +60,7 @@ __all__ = ["AidReport", "NavSolution", "Navigator", "correct_nav"]
 log = logging.getLogger("zennav.nav")
 
 LEARN_SETTLE_S = 10.0  # no training samples for this long after an outage or a covariance reset [s]
-STATE_FORMAT = "zennav.nav.Navigator/2"
+STATE_FORMAT = "zennav.nav.Navigator/3"
 
 
 @dataclass
@@ -107,12 +107,8 @@ class Navigator:
         self.config = config
         self.t_ns = int(initial.t_ns)
         coarse = not initial.heading_is_known()
-        if coarse:  # yaw 0 as a placeholder with the 1-sigma of an angle uniform in +-180 deg; so for an
-            # unknown (non-finite) roll or pitch, which in-motion alignment then takes as 0 / the climb angle
-            known = [math.isfinite(float(a)) for a in initial.euler[:2]]
-            euler = [float(a) if k else 0.0 for a, k in zip(initial.euler[:2], known)] + [0.0]
-            std = [float(e) if k else math.pi / math.sqrt(3.0) for e, k in zip(initial.std_euler[:2], known)]
-            initial = replace(initial, euler=np.array(euler), std_euler=np.array(std + [math.pi / math.sqrt(3.0)]))
+        if coarse:
+            initial = coarse_initial(initial)
         self.state = NavState.from_arrays(initial.llh, initial.v_n, euler_to_quat(initial.euler))
         self.gyro_bias = [float(x) for x in initial.gyro_bias]
         self.accel_bias = [float(x) for x in initial.accel_bias]
@@ -440,8 +436,8 @@ class Navigator:
             R = vb.update(z, H @ self.kf.P @ H.T, R, m.channels, gate)
         source.R_used = R
         reason, faults = "", list(m.faults)
-        # consistency monitoring once aligned: while the heading converges, steady innovations are its error
-        monitor = source.consistency if m.gated and self.alignment.state == AlignState.ALIGNED else None
+        # consistency monitoring once aligned or started by a coarse alignment (Alignment.monitored)
+        monitor = source.consistency if m.gated and self.alignment.monitored() else None
         if monitor is not None and (factor := monitor.factor(z, H @ self.kf.P @ H.T, R)) > 1.0:
             self.kf.P *= factor  # overconfident on small, steady innovations: fading memory (nav.consistency)
             self.counters[f"{name}_inflated"] += 1

@@ -276,6 +276,8 @@ def format_table(snap: dict) -> str:
             times = ", ".join(f"{s} {t:.1f} s" for s, t in al["times_s"].items())
             lines.append(f"  alignment {al['state']:<8} method {al['method'] or '-'}  heading 1-sigma "
                          f"{al['heading_std_deg']:.3f} deg  tilt from {al['tilt_source'] or '-'}  ({times})")
+            if al.get("initial_state"):
+                lines.append(f"  initial state {al['initial_state']}"[:200])
         if "adaptive_r" in nav:
             lines.append(f"  adaptive R {'on' if nav['adaptive_r'] else 'off'}")
         for src, r in (nav.get("measurement_noise") or {}).items():

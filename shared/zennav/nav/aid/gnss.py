@@ -3,6 +3,9 @@ outage declaration and recovery; during coarse alignment it hands the fix to the
 velocity. Models in zennav.nav.aiding; the fix is fused at its own time (the engine splits the IMU interval).
 
 Faults, each rejection counted under its reason and reported:
+- initial state (init_state_rejected): while a configured initial state is under test (its first fixes, and its
+  first fixes in motion), each fix is first tested against it (zennav.nav.alignment, Alignment.check_initial); two
+  contradicting fixes in a row send the engine back to coarse alignment, the second one tracked;
 - input: gnss_malformed, gnss_duplicate, gnss_out_of_order, gnss_fix_quality, gnss_few_satellites, gnss_std,
   gnss_stale (older than MAX_FIX_AGE_S behind the IMU);
 - jump (gnss_pos_jump): further than max_jump_m horizontally from the INS prediction and outside the chi-square
@@ -138,8 +141,10 @@ class GnssPosition(AidSource):
         fix_llh = np.asarray(fix.llh, dtype=float)
         v_ant_n = antenna_velocity(nav.state, nav.lever_b, ctx.omega_ib_b)
         z, H = position_model(nav.state, nav.lever_b, fix_llh, v_ant_n, ctx.age_s)
-        R = np.diag(np.square(np.maximum(fix.std_ned, self.config.pos_std_floor_m)))
-        if ctx.coarse:
+        std_pos = np.maximum(fix.std_ned, self.config.pos_std_floor_m)
+        R = np.diag(np.square(std_pos))
+        checking = not ctx.coarse and nav.alignment.checking
+        if ctx.coarse or (checking and nav.alignment.check_initial(nav, ctx, z, H, R)):
             self._coarse_fix(nav, ctx, fix_llh, z)
             return False
         m = Measurement(fix.t_ns, fix_llh, z, H, R)
@@ -149,6 +154,8 @@ class GnssPosition(AidSource):
             fused = nav.update(self, m)
         else:
             fused = not self._is_jump(nav, m) and nav.update(self, m)
+        if checking and nav.alignment.checking:  # the configured initial state is still under test
+            nav.alignment.check_fused(nav, ctx, std_pos, fused)
         if fused:
             if 0 < (fix.t_ns - self.valid_t_ns) / NS < 5.0:
                 self.interval_s = (fix.t_ns - self.valid_t_ns) / NS
