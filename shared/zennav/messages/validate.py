@@ -19,7 +19,6 @@ from .codec import decode
 from .keys import stream_of
 from .schema import ANY, BOOL, FLOAT, INT, INTS, MAP, SCHEMAS, STR, STRS, Schema
 
-
 _FLOAT_ONLY = {float}
 
 
