@@ -11,10 +11,13 @@
   command;
 - pyins (``python-ins``, a Python INS with numba, bench extra) on the first --pyins-minutes of the same drive: its
   feedback filter (run_feedback_filter, position fixes), CPU seconds and real-time factor;
-- KF-GINS (--kf-gins PATH, the binary) on the same KF-GINS files, wall and CPU seconds.
+- KF-GINS (--kf-gins PATH, the binary) on the same KF-GINS files, wall and CPU seconds;
+- --profile stages: where one whole command's time goes (a child ``zennav replay`` on the KF-GINS files with its
+  stages timed from inside: imports, loading, the step-wise samples (the head of the IMU file and the GNSS epochs),
+  reading the rest of the IMU file, loading numba, the compiled stretches, the truth, the metrics, the files).
 
     .venv/bin/python benchmarks/core_speed.py [--minutes 30] [--repeats 3] [--learn-minutes 5] [--kf-gins PATH]
-        [--profile loop|command]
+        [--profile loop|command|stages]
 """
 from __future__ import annotations
 
@@ -39,6 +42,59 @@ from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
 
 ZENNAV = str(Path(sys.executable).parent / "zennav")
+
+# --profile stages: a whole `zennav replay` (argv after -c) with the wall and CPU seconds of its stages, on stderr
+STAGES = r"""
+import resource, sys, time
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+w0, c0 = time.perf_counter(), cpu()
+import zennav.datasets.kfgins as KF, zennav.datasets.registry as REG, zennav.datasets.streamed as ST
+import zennav.metrics as MT, zennav.nav.kernels as KN, zennav.nav.navigator as NV, zennav.replay as RP
+import zennav.replay_cli, zennav.run_outputs as RO
+rows = [("imports (zennav, numpy, click)", time.perf_counter() - w0, cpu() - c0, 1)]
+acc = {}
+def timed(owner, name, label):
+    f = getattr(owner, name)
+    def g(*a, **k):
+        w, c = time.perf_counter(), cpu()
+        try:
+            return f(*a, **k)
+        finally:
+            d = acc.setdefault(label, [0.0, 0.0, 0])
+            d[0] += time.perf_counter() - w; d[1] += cpu() - c; d[2] += 1
+    setattr(owner, name, g)
+for owner, name, label in ((REG, "load_dataset", "load dataset (IMU head, GNSS)"),
+                           (NV.Navigator, "on_imu", "step-wise samples (head, GNSS epochs)"),
+                           (ST.StreamedImu, "whole", "read the rest of the IMU file"),
+                           (KN, "compiled", "load numba and the kernels"),
+                           (NV.Navigator, "run_imu", "compiled stretches"),
+                           (KF, "load_deferred_truth", "read the truth file"), (MT, "evaluate", "metrics"),
+                           (KF, "write_nav", "write nav.txt"), (MT, "write_solution", "write nav.txt + nav.csv"),
+                           (RO.RunRecorder, "write", "write aid.csv, biases.csv, run.json")):
+    timed(owner, name, label)
+sys.argv = ["zennav", "replay", *sys.argv[1:]]
+from zennav.cli import main
+try:
+    main()
+except SystemExit:
+    pass
+rows += [(k, *v) for k, v in acc.items()] + [("whole command (from the imports on)",
+                                              time.perf_counter() - w0, cpu() - c0, 1)]
+sys.stderr.write("".join(f"STAGE {k}\t{w}\t{c}\t{n}\n" for k, w, c, n in rows))
+"""
+
+
+def stages(cmd_args: list[str]) -> None:
+    """Print where the wall and CPU seconds of one whole ``zennav replay cmd_args`` go (STAGES, in a child)."""
+    r = subprocess.run([sys.executable, "-c", STAGES, *cmd_args], check=True, stdout=subprocess.DEVNULL,
+                       stderr=subprocess.PIPE, text=True)
+    print(f"{'stages of one whole command':<44}{'wall s':>9}{'CPU s':>9}{'calls':>8}")
+    for ln in r.stderr.splitlines():
+        if ln.startswith("STAGE "):
+            name, wall, cpu, n = ln[6:].split("\t")
+            print(f"  {name:<42}{float(wall):9.2f}{float(cpu):9.2f}{int(n):8d}")
 
 
 def cpu_of(fn, *args, **kw):
@@ -106,8 +162,9 @@ def main() -> None:
     ap.add_argument("--learn-minutes", type=float, default=5.0, help="drive of the learning runs (0: skip)")
     ap.add_argument("--pyins-minutes", type=float, default=2.0, help="pyins's share of the drive (0: skip)")
     ap.add_argument("--kf-gins", type=Path, default=None, help="a KF-GINS binary to run on the same files")
-    ap.add_argument("--profile", choices=("loop", "command"), default=None,
-                    help="print the top of a cProfile of one compiled loop, or of one whole command in-process")
+    ap.add_argument("--profile", choices=("loop", "command", "stages"), default=None,
+                    help="print the top of a cProfile of one compiled loop, or of one whole command in-process, or "
+                         "the stages of one whole command (a child process)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)  # the engine's outage warnings
 
@@ -144,6 +201,8 @@ def main() -> None:
             wall, cpu = median_pair([child([str(args.kf_gins), str(yaml_path)], cwd=str(Path(tmp) / "files"))
                                      for _ in range(args.repeats)])
             line("KF-GINS (C++), same files, no outage", data_s, wall, cpu)
+        if args.profile == "stages":
+            stages([str(yaml_path), "--outage", f"{data_s / 2:g}:60", "--out", str(Path(tmp) / "out"), "-q"])
         if args.profile == "command":
             from zennav.replay_cli import replay_dataset
 

@@ -13,9 +13,9 @@
   It also lists the heavy modules the replay loaded (torch, matplotlib, mcap, scipy.stats, ... must not load
   for a plain replay).
 
-By default it replays rtklibexplorer (the real 100 Hz drive; its loader filters with scipy.signal) and a simulated
-car drive of --kf-gins-duration s at 200 Hz written as KF-GINS text files (zennav.datasets.kfgins.write_dataset:
-the issue's case, 30 min).
+By default it replays rtklibexplorer (the real 100 Hz drive; its loader low-passes it with scipy's filtfilt floats),
+sim:car (the simulator's 600 s drive, generated at start) and a simulated car drive of --kf-gins-duration s at
+200 Hz written as KF-GINS text files (zennav.datasets.kfgins.write_dataset: the issue's case, 30 min).
 
     .venv/bin/python benchmarks/startup.py [--repeat 5] [--kf-gins-duration 1800] [--spec rtklibexplorer ...]
 """
@@ -107,7 +107,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--spec", action="append", default=None,
-                    help="datasets to replay (default: rtklibexplorer and the simulated KF-GINS files)")
+                    help="datasets to replay (default: rtklibexplorer, sim:car and the simulated KF-GINS files)")
     ap.add_argument("--kf-gins-duration", type=float, default=1800.0,
                     help="[s] of the simulated car drive written as KF-GINS files (0: none)")
     ap.add_argument("--json", default=None, help="also write the results here")
@@ -123,7 +123,7 @@ def main() -> int:
     results["help_s"] = helps
     print(f"zennav --help: median {med(helps)} over {len(helps)} runs (target < 0.3 s)", flush=True)
     with tempfile.TemporaryDirectory(prefix="zennav-startup-") as tmp:
-        specs = args.spec or ["rtklibexplorer"]
+        specs = args.spec or ["rtklibexplorer", "sim:car"]
         if args.kf_gins_duration > 0:
             from zennav.datasets import kfgins
             from zennav.sim.scenarios import make_dataset

@@ -177,3 +177,15 @@ def test_chi2_quantile_is_scipy_stats_chi2_ppf_bit_for_bit(p, dof):
     from zennav.nav.eskf import chi2_quantile
 
     assert chi2_quantile(p, dof) == float(chi2.ppf(p, dof))
+
+
+def test_the_written_out_chi2_quantiles_are_scipys():
+    """CHI2_TABLE (the default settings' quantiles, written out: no scipy.special import) holds scipy's floats."""
+    from scipy.special import gammaincinv
+    from scipy.stats import chi2
+
+    from zennav.nav.eskf import CHI2_TABLE
+
+    assert len(CHI2_TABLE) == 27
+    for (p, dof), q in CHI2_TABLE.items():
+        assert q == float(2.0 * gammaincinv(dof / 2.0, p)) == float(chi2.ppf(p, dof)), (p, dof)

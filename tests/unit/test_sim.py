@@ -242,6 +242,22 @@ def test_gauss_markov_has_the_stationary_std_and_correlation_time():
     assert abs(starts.std() / sigma - 1.0) < 0.1
 
 
+@pytest.mark.parametrize("n, dt, sigma, tau", [(20_000, 0.005, 1e-4, 3600.0), (500, 0.01, 2.0, 0.05),
+                                               (50, 0.005, 1e-3, np.inf), (1, 1.0, 1.0, 1.0)])
+def test_gauss_markov_is_scipy_lfilter_bit_for_bit(n, dt, sigma, tau):
+    """The recursion in Python floats (no scipy.signal import) gives scipy.signal.lfilter's floats: the simulated
+    datasets, and every replay of them, stay the same."""
+    from scipy.signal import lfilter
+
+    got = gauss_markov(n, dt, sigma, tau, np.random.default_rng(5))
+    rng = np.random.default_rng(5)
+    phi = np.exp(-dt / tau)
+    e = sigma * np.sqrt(-np.expm1(-2.0 * dt / tau)) * rng.standard_normal((n, 3))
+    e[0] = sigma * rng.standard_normal(3)
+    want = lfilter([1.0], [1.0, -phi], e, axis=0)
+    assert got.shape == want.shape and got.flags.c_contiguous and np.array_equal(got, want)
+
+
 def test_imu_white_noise_and_bias_series():
     traj = StaticTrajectory(LLH0, 100.0, euler=(0.1, 0.0, 1.0))
     noise = IMU_GRADES["mems"].noise()

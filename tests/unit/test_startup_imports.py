@@ -16,17 +16,21 @@ def test_a_dataset_folder_imports_only_its_own_loader():
     for every folder otherwise)."""
     names = ("zennav.datasets.rtklibexplorer", "zennav.datasets.ansfl", "zennav.datasets.comma2k19",
              "zennav.datasets.kfgins")
-    got = _modules_after("from zennav.datasets.registry import load_dataset\nload_dataset('rtklibexplorer')", names)
-    assert got == ["zennav.datasets.rtklibexplorer"]
+    got = _modules_after("from zennav.datasets.registry import load_dataset\nload_dataset('rtklibexplorer')",
+                         names + ("scipy.signal",))
+    assert got == ["zennav.datasets.rtklibexplorer"]  # its zero-phase filter without scipy.signal (about 1.2 s)
 
 
 def test_a_plain_replay_does_not_import_the_learning_loop():
-    """`zennav replay` without --compensation: no learning loop, no torch, no plotting, no MCAP writer."""
+    """`zennav replay` without --compensation: no learning loop, no torch, no plotting, no MCAP writer, no scipy.signal,
+    scipy.special or scipy.stats."""
     names = ("zennav.learn.loop", "torch", "matplotlib", "mcap")
     code = ("from click.testing import CliRunner\nfrom zennav.cli import main\n"
             "r = CliRunner().invoke(main, ['replay', 'sim:static', '-o', 'duration_s=2', '-q'])\n"
             "assert r.exit_code == 0, r.output")
     assert _modules_after(code, names) == []
+    # nor scipy's slow imports: the simulator's Gauss-Markov series, the gates' chi-square quantiles (eskf.CHI2_TABLE)
+    assert _modules_after(code, ("scipy.signal", "scipy.special", "scipy.stats")) == []
     with_loop = code.replace("'-q']", "'-q', '--compensation', 'anfis']")
     assert _modules_after(with_loop, names)[:1] == ["zennav.learn.loop"]  # the check sees it when it is used
 

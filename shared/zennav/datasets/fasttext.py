@@ -75,7 +75,7 @@ def _fixed_series(columns: np.ndarray, decimals: list[int], separator: str) -> l
         df = pl.DataFrame(columns[:, j:k], schema=[f"c{i}" for i in range(j, k)], orient="row")
         text = df.write_csv(None, include_header=False, separator=separator, float_precision=decimals[j],
                             float_scientific=False, line_terminator="\n", quote_style="never")
-        out.append(pl.Series(f"g{j}", text.split("\n")[:-1], dtype=pl.String))
+        out.append(pl.Series(f"g{j}", [text]).str.split("\n").explode().head(len(columns)))  # no Python str per row
         j = k
     return out
 

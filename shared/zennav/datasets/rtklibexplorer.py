@@ -5,9 +5,10 @@ Follows the dataset README and the source converter (rtklibexplorer/GNSS_IMU ``c
 - IMU ``imu_*.csv``: accel x y z [g], gyro x y z [deg/s], counter [ms]; the first and the last row are skipped.
   The counter is mapped linearly onto [start, end] of the RTKLIB ``.tag`` file, then -0.125 s of logging delay
   is added. Times are GPS seconds since 1980-01-06 (the tag's Unix-style count is in GPST: minus 315964800 s).
-- Optional 4th-order Butterworth low-pass run forward and backward (scipy filtfilt, zero phase) on the raw sensor
-  axes, as the source does: 10 Hz gyro, 10 Hz horizontal (x, y) accel, 5 Hz vertical (z) accel. Zero phase means
-  non-causal (it uses future samples), so it suits post-processing only; ``prefilter="none"`` disables it.
+- Optional 4th-order Butterworth low-pass run forward and backward (scipy's filtfilt, zero phase; its floats by
+  zennav.datasets.butterworth) on the raw sensor axes, as the source does: 10 Hz gyro, 10 Hz horizontal (x, y)
+  accel, 5 Hz vertical (z) accel. Zero phase means non-causal (it uses future samples), so it suits
+  post-processing only; ``prefilter="none"`` disables it.
 - Sensor axes -> body FRD with ``imu_misalign`` through Groves' Euler_to_CTM (the transpose of our C_nb of the
   same angles); units g -> m/s^2 (9.80665) and deg/s -> rad/s; rates -> increments by the trapezoid rule
   (ImuData.from_rates).
@@ -20,8 +21,8 @@ import struct
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import butter, filtfilt
 
+from zennav.datasets.butterworth import lowpass
 from zennav.datasets.errors import DataError, existing_file, read_table
 from zennav.nav import earth
 from zennav.nav.alignment import level
@@ -54,8 +55,7 @@ def read_tag(path) -> tuple[int, float, int]:
 
 def _lowpass(x: np.ndarray, cutoff_hz: float) -> np.ndarray:
     """4th-order Butterworth low-pass, forward and backward (zero phase, non-causal), along axis 0."""
-    b, a = butter(4, cutoff_hz / (0.5 * IMU_RATE_HZ))
-    return filtfilt(b, a, x, axis=0)
+    return lowpass(x, cutoff_hz / (0.5 * IMU_RATE_HZ))
 
 
 def load_imu(csv_path, prefilter: str = "zero-phase") -> ImuData:

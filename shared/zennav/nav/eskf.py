@@ -33,10 +33,27 @@ N_STATES = 15
 POS, VEL, ATT, BG, BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
 
 
+# chi2_quantile of the probabilities in deploy/ins.yaml (gate 0.9999, consistency 0.999, adaptive R and DVL anomaly
+# 0.99) and the degrees of freedom they meet (1-6, a window of 10 updates of 1-3): scipy's floats written out, so that
+# a replay with the default settings does not import scipy.special (about 0.3 s, issue 17); a test ties them.
+_CHI2_ROWS = {  # probability -> the quantiles at 1, 2, 3, 4, 5, 6, 10, 20, 30 degrees of freedom
+    0.99: (6.6348966010212145, 9.21034037197618, 11.344866730144373, 13.276704135987622, 15.08627246938899,
+           16.811893829770927, 23.209251158954356, 37.56623478662507, 50.89218131151707),
+    0.999: (10.827566170662733, 13.815510557964274, 16.26623619623813, 18.46682695290317, 20.515005652432873,
+            22.457744484825323, 29.58829844507442, 45.31474661812586, 59.70306430442994),
+    0.9999: (15.136705226623606, 18.420680743952584, 21.107513466160444, 23.512742444991076, 25.74483195905612,
+             27.85634123601417, 35.564013941952396, 52.3859732730525, 67.63263025741439),
+}
+CHI2_TABLE = {(p, dof): q for p, row in _CHI2_ROWS.items() for dof, q in zip((1, 2, 3, 4, 5, 6, 10, 20, 30), row)}
+
+
 def chi2_quantile(p: float, dof: int) -> float:
     """The chi-square quantile of probability p with dof degrees of freedom (the innovation gate):
     2 P^-1(dof/2, p), P the regularised lower incomplete gamma function; the same float operations as
-    scipy.stats.chi2.ppf, without importing scipy.stats (slow to import)."""
+    scipy.stats.chi2.ppf, without importing scipy.stats (slow to import); from CHI2_TABLE where it has (p, dof)."""
+    q = CHI2_TABLE.get((p, dof))
+    if q is not None:
+        return q
     from scipy.special import gammaincinv  # here, not at import: about 0.3 s of a replay's start (issue 17)
 
     return float(2.0 * gammaincinv(dof / 2.0, p))
