@@ -1,8 +1,9 @@
 """The configured initial state tested against the first GNSS fixes (zennav.nav.alignment, Alignment.check_initial,
 issue 18): a stale one (the data's start cut, the state left as it was) has its position and velocity reset from the
-fixes, then its attitude rejected once the fixes in motion contradict it, and the engine aligns in motion; a correct one, and a correct one whose first fix is an outlier, are accepted; one at rest waits for
-the first fixes in motion (a heading given wrong at rest: tests/unit/test_alignment.py); a wrong position or velocity
-with the attitude right is reset from the fixes and the attitude kept."""
+fixes, then its attitude rejected once the fixes in motion contradict it, and the engine aligns in motion; a correct
+one, and a correct one whose first fix is an outlier, are accepted; one at rest waits for the first fixes in motion (a
+heading given wrong at rest: tests/unit/test_alignment.py); a wrong position or velocity with the attitude right is
+reset from the fixes and the attitude kept."""
 from __future__ import annotations
 
 import json
