@@ -170,3 +170,17 @@ def test_replay_of_stale_kf_gins_files_says_so(drive, tmp_path):
     engine = json.loads((tmp_path / "out" / "metrics.json").read_text())["engine"]
     assert engine["alignment"]["initial_state"].startswith("rejected: ")
     assert engine["counters"]["init_state_reset_pos_vel"] == 1 and engine["counters"]["init_state_rejected"] == 1
+
+
+def test_wrong_heading_in_motion_is_discarded_after_the_reset(drive):
+    """Position and velocity right at the cut (the car driving), the heading 120 deg off: the fixes contradict the
+    velocity it integrates, position and velocity are reset (attitude kept), the next fixes contradict the attitude and
+    the engine aligns in motion."""
+    start = truth_state(drive, CUT_S)
+    ds = cut(drive, CUT_S, replace(start, euler=start.euler + [0.0, 0.0, math.radians(120.0)]))
+    res = run_replay(ds)
+    counters, al = res.status["counters"], res.status["alignment"]
+    assert counters["init_state_reset_pos_vel"] == 1 and counters["init_state_rejected"] == 1
+    assert al["method"] == "in_motion" and al["initial_state"].startswith("rejected: ")
+    err = horizontal_errors(ds, res)
+    assert err[res.t_ns >= al["times_ns"]["fine"]].max() < 3.0
