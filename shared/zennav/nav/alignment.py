@@ -294,8 +294,8 @@ class Alignment:
 
     def _reset_position_velocity(self, nav, ctx, detail: str, prev: tuple) -> str:
         """Stage 1 (see the module docstring): two fixes in a row (prev: the one before) contradict a state never
-        consistent with them: position and velocity from the fixes, attitude and biases kept; the attitude is tested
-        again once the velocity changes."""
+        consistent with them: position and velocity from the fixes, attitude and biases kept; the attitude stays under
+        test at the fixes that follow."""
         fix, cfg = ctx.fix, self.config
         nav.counters["init_state_reset_pos_vel"] += 1
         self.initial_check = RESET
