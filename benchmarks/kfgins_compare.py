@@ -19,6 +19,7 @@ solutions are scored by zennav.metrics.evaluate against the same truth. zennav r
     python benchmarks/kfgins_compare.py --kf-gins /tmp/kfgins/bin/KF-GINS rtk
     python benchmarks/kfgins_compare.py --kf-gins /tmp/kfgins/bin/KF-GINS uav --outage 30 --outage 60
     python benchmarks/kfgins_compare.py rtk --stale 5 --stale 20 --stale 60
+    python benchmarks/kfgins_compare.py uav --stale 5 --stale 20 --stale 60
 
 Without --kf-gins only zennav runs. KF-GINS builds from its public source with its bundled third-party libraries
 (Eigen 3.3.9, yaml-cpp 0.7.0, abseil): ``cmake -S KF-GINS -B KF-GINS/build -DCMAKE_BUILD_TYPE=Release && make -C
@@ -156,7 +157,7 @@ def main(argv=None) -> int:
     ap.add_argument("--kf-gins", type=Path, default=None, help="the KF-GINS binary (built from i2Nav-WHU/KF-GINS)")
     ap.add_argument("--params", type=Path, default=None, help="the ins's parameter file (default deploy/ins.yaml)")
     ap.add_argument("--outage", type=float, action="append", default=None,
-                    help="outage length [s] (repeatable; the uav case's default: 30, 60, 120)")
+                    help="outage length [s] (repeatable; the uav case's default without --stale: 30, 60, 120)")
     ap.add_argument("--every", type=float, default=None, help="outage period [s] (default: 4 x the outage, >= 60 s)")
     ap.add_argument("--seed", type=int, default=0, help="simulator seed of the uav case")
     ap.add_argument("--velocity", action="store_true", help="uav case: GNSS velocity in the files (zennav only)")
@@ -165,7 +166,8 @@ def main(argv=None) -> int:
                          "original start (repeatable)")
     args = ap.parse_args(argv)
     ds = rtk_case() if args.case == "rtk" else uav_case(args.seed, args.velocity)
-    outages = args.outage if args.outage is not None else ([] if args.case == "rtk" else [30.0, 60.0, 120.0])
+    outages = args.outage if args.outage is not None else ([] if args.case == "rtk" or args.stale
+                                                           else [30.0, 60.0, 120.0])
     print(f"{ds.name}: {(run_end_ns(ds) - ds.initial.t_ns) / NS:.0f} s, IMU noise {ds.config.imu_noise}")
     print_rows("full GNSS", compare(ds, None, args.kf_gins, args.params, 0.0))
     for stale in args.stale:

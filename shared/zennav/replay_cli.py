@@ -166,6 +166,8 @@ def _gnss_summary(counters: dict) -> str:
     text += f"; gate resets {resets}, outages declared {outages}"
     if counters.get("init_state_rejected"):  # zennav.nav.alignment: the first fixes contradicted it
         text += "; the configured initial state was rejected by the first fixes (aligned from the fixes instead)"
+    elif counters.get("init_state_reset_pos_vel"):
+        text += "; the configured initial position and velocity were reset from the first fixes (attitude kept)"
     return text
 
 

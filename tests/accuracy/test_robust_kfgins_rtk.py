@@ -4,8 +4,9 @@ the real noise about 10x larger), position fixes only, as a KF-GINS user writes 
 fixes to 0.116 m horizontal RMS (benchmarks/kfgins_compare.py rtk). Measured with zennav's defaults: 0.066 m, every
 fix but one fused, no outage after the start, no reset; without the consistency monitor: 36 m, 38 covariance
 resets. A 1 km jump and a 10 m/s drag of the fixes are still rejected. The same files started 20 s later with the
-initial state of the original start (a user who cut the file's start): the state is rejected by the first fixes and
-the engine aligns in motion (on main: 90.8 m, 41 resets). Skipped when the data folder is absent."""
+initial state of the original start (a user who cut the file's start): the first fixes reset its position and
+velocity, the fixes after contradict its attitude (the car turned during the cut), the state is rejected and the
+engine aligns in motion (before issue 18's check: 90.8 m, 41 resets). Skipped when the data folder is absent."""
 from __future__ import annotations
 
 import logging
@@ -108,6 +109,7 @@ def test_stale_initial_state_is_rejected_and_the_fixes_are_fitted(drive, tmp_pat
     after = errors_after(loaded, res, al["times_ns"]["fine"])
     print(f"stale +20 s: horizontal RMS {m['horizontal_rms_m']:.3f} m, after the in-motion alignment "
           f"{np.sqrt(np.mean(after**2)):.3f} m (max {after.max():.3f} m); counters {dict(c)}")
-    assert c["init_state_rejected"] == 1 and al["method"] == "in_motion" and al["state"] == "aligned"
+    assert c["init_state_reset_pos_vel"] == 1 and c["init_state_rejected"] == 1
+    assert al["method"] == "in_motion" and al["state"] == "aligned"
     assert c.get("gate_reset", 0) == 0 and c.get("gnss_pos_gate", 0) <= 5
     assert np.sqrt(np.mean(after**2)) < 0.2  # KF-GINS on the good files: 0.116 m

@@ -1,7 +1,9 @@
 """The configured initial state tested against the first GNSS fixes (zennav.nav.alignment, Alignment.check_initial,
-issue 18): a stale one (the data's start cut, the state left as it was) is rejected and the engine aligns in motion
-from the fixes; a correct one, and a correct one whose first fix is an outlier, are accepted; one at rest waits for
-the first fixes in motion (a heading given wrong at rest: tests/unit/test_alignment.py)."""
+issue 18): a stale one (the data's start cut, the state left as it was) has its position and velocity reset from the
+fixes, then its attitude rejected once the fixes in motion contradict it, and the engine aligns in motion; a correct
+one, and a correct one whose first fix is an outlier, are accepted; one at rest waits for the first fixes in motion (a
+heading given wrong at rest: tests/unit/test_alignment.py); a wrong position or velocity with the attitude right is
+reset from the fixes and the attitude kept."""
 from __future__ import annotations
 
 import json
@@ -14,6 +16,7 @@ import pytest
 from zennav.metrics import ned_errors
 from zennav.nav.alignment import AT_REST
 from zennav.nav.navigator import Navigator
+from zennav.nav.rotation import quat_to_euler, wrap_angle
 from zennav.nav.types import NS, Dataset, InitialState
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
@@ -55,8 +58,10 @@ def test_stale_initial_state_is_rejected_and_the_run_aligns_in_motion(drive):
     ds = cut(drive, CUT_S)
     res = run_replay(ds)
     counters, al = res.status["counters"], res.status["alignment"]
+    # the car turned during the cut: position and velocity reset first, then the attitude discarded
+    assert counters["init_state_reset_pos_vel"] == 1
     assert counters["init_state_rejected"] == 1 and counters["align_in_motion"] == 1
-    assert al["initial_state"].startswith("rejected: position NIS") and al["state"] == "aligned"
+    assert al["initial_state"].startswith("rejected: ") and al["state"] == "aligned"
     assert counters.get("gate_reset", 0) == 0
     err = horizontal_errors(ds, res)
     after = res.t_ns >= al["times_ns"]["fine"]
@@ -88,11 +93,41 @@ def test_state_at_rest_waits_for_motion():
     assert res.status["alignment"]["initial_state"] == AT_REST
 
 
-def test_wrong_velocity_is_rejected_by_the_fixes_velocity(drive):
-    """Position right at the first fix (10 ms after the start), velocity reversed: the fix's velocity strikes first."""
+def test_wrong_velocity_is_reset_from_the_fixes_velocity(drive):
+    """Position right at the first fix (10 ms after the start), velocity reversed, attitude right: the fix's velocity
+    strikes first, position and velocity are reset from the fixes, and the attitude kept passes once tested."""
     start = truth_state(drive, CUT_S - 0.01)
-    res = run_replay(cut(drive, CUT_S - 0.01, replace(start, v_n=-start.v_n)))
-    assert res.status["alignment"]["initial_state"].startswith("rejected: velocity NIS")
+    ds = cut(drive, CUT_S - 0.01, replace(start, v_n=-start.v_n))
+    res = run_replay(ds)
+    counters = res.status["counters"]
+    assert counters["init_state_reset_pos_vel"] == 1 and "init_state_rejected" not in counters
+    assert res.status["alignment"]["initial_state"] == "accepted"
+    assert horizontal_errors(ds, res)[-100:].max() < 3.0
+
+
+def test_wrong_position_is_reset_and_the_attitude_kept(drive):
+    """The truth's velocity and attitude at the cut, the position 200 m off: position and velocity are reset from the
+    second fix, the attitude and its covariance are kept as they were (not re-aligned), and the state is accepted
+    once the velocity has changed."""
+    start = truth_state(drive, CUT_S)
+    ds = cut(drive, CUT_S, replace(start, llh=start.llh + [200.0 / 6.4e6, 0.0, 0.0]))
+    nav = Navigator(ds.config, ds.initial)
+    k_fix, reset_fix = 0, None
+    for k in range(len(ds.imu)):  # fixes queued as they come, fused when the IMU reaches their time
+        t = int(ds.imu.t_ns[k])
+        while k_fix < len(ds.gnss) and ds.gnss.t_ns[k_fix] <= t:
+            nav.on_gnss(ds.gnss.fix_at(k_fix))
+            k_fix += 1
+        euler_before, P_att = quat_to_euler(nav.state.q_nb), nav.P[6:9, 6:9].copy()
+        nav.on_imu(t, ds.imu.dtheta[k], ds.imu.dvel[k])
+        if reset_fix is None and nav.counters.get("init_state_reset_pos_vel"):  # in this IMU interval
+            reset_fix = k_fix
+            assert np.abs(wrap_angle(quat_to_euler(nav.state.q_nb) - euler_before)).max() < 5e-3  # a 10 ms step
+            assert np.allclose(nav.P[6:9, 6:9], P_att, rtol=1e-3, atol=1e-12)  # not the coarse alignment's 104 deg
+            assert not nav.alignment.coarse
+    assert reset_fix == 2  # the second fix in a row that contradicts the position
+    assert nav.alignment.initial_check == "accepted" and "init_state_rejected" not in nav.counters
+    assert "align_in_motion" not in nav.counters
 
 
 def test_one_outlier_first_fix_does_not_reject_a_correct_state(drive):
@@ -133,5 +168,19 @@ def test_replay_of_stale_kf_gins_files_says_so(drive, tmp_path):
     assert res.exit_code == 0, res.output
     assert "the configured initial state was rejected by the first fixes" in res.output
     engine = json.loads((tmp_path / "out" / "metrics.json").read_text())["engine"]
-    assert engine["alignment"]["initial_state"].startswith("rejected: position NIS")
-    assert engine["counters"]["init_state_rejected"] == 1
+    assert engine["alignment"]["initial_state"].startswith("rejected: ")
+    assert engine["counters"]["init_state_reset_pos_vel"] == 1 and engine["counters"]["init_state_rejected"] == 1
+
+
+def test_wrong_heading_in_motion_is_discarded_after_the_reset(drive):
+    """Position and velocity right at the cut (the car driving), the heading 120 deg off: the fixes contradict the
+    velocity it integrates, position and velocity are reset (attitude kept), the next fixes contradict the attitude and
+    the engine aligns in motion."""
+    start = truth_state(drive, CUT_S)
+    ds = cut(drive, CUT_S, replace(start, euler=start.euler + [0.0, 0.0, math.radians(120.0)]))
+    res = run_replay(ds)
+    counters, al = res.status["counters"], res.status["alignment"]
+    assert counters["init_state_reset_pos_vel"] == 1 and counters["init_state_rejected"] == 1
+    assert al["method"] == "in_motion" and al["initial_state"].startswith("rejected: ")
+    err = horizontal_errors(ds, res)
+    assert err[res.t_ns >= al["times_ns"]["fine"]].max() < 3.0

@@ -106,8 +106,8 @@ define("nav_status", 1, "ins health: GNSS state, core counters, rejected (bus va
        "as not from the live stream), stream progress (src, done, last_cseq, merge counts), live model. "
        "Optional (added compatibly, checked strictly when present, see check_nav_status): alignment {state: "
        "coarse|fine|aligned, method, heading_std_rad, times_ns {state: t_ns}, tilt_source, gyrocompass, optional "
-       "initial_state: the configured initial state's test against the first fixes ('', at rest, accepted, "
-       "rejected: why)}; "
+       "initial_state: the configured initial state's test against the first fixes ('', at rest, position and "
+       "velocity reset, accepted, rejected: why)}; "
        "adaptive_r: adaptive measurement noise on/off; measurement_noise {source: {R_diag [unit^2], ratio "
        "(R / reported R, diagonal) or None, branch, k, inflate, fading}}; aid_counts {stream: samples consumed} "
        "of the aid streams (dvl, depth) the stream has.",

@@ -19,13 +19,25 @@ velocity, else the displacement between two fixes against the INS's over the sam
 chi-square quantile of the engine's gate (gate_probability) on 3 degrees of freedom (the NIS test of Bar-Shalom, Li &
 Kirubarajan 2001, "Estimation with applications to tracking and navigation", sec. 5.4; Groves 2013 section 17.3.1,
 innovation-based outlier detection, applied to the initial state rather than the fix). Two fixes in a row must fail
-(one outlier fix is left to the gate). At rest the fixes see no heading: a state consistent with them there is
-tested again at the first fixes in motion (horizontal speed of the fixes at least align_min_speed_mps), where a
-wrong heading shows as a velocity (then position) innovation; it is accepted once such a pair passes. A state the
-fixes contradict (a file's start cut without moving its initial state, a heading given wrong) is discarded, counted
-init_state_rejected and logged: the engine goes back to coarse alignment from the fixes with position, velocity and
-attitude unknown, as if no initial state had been configured (the biases and their 1-sigma are kept). A state that
-passes changes nothing.
+(one outlier fix is left to the gate). The fixes see position and velocity directly but the attitude only through
+the velocity it integrates: a heading error psi turns a change dv of the horizontal velocity into a velocity error of
+about |dv| psi (Groves 2013 section 14.4.2: heading is observable under horizontal acceleration only). So the state
+is rejected in two stages, the attitude last:
+1. A state never consistent with the fixes (a file's start cut without moving its initial state) has its position
+   and velocity reset from the second failing fix (position at the fix with its 1-sigma; velocity the fix's, else the
+   displacement from the fix before over their interval with its 1-sigma, as in the coarse alignment's tracking),
+   decorrelated from the rest; the attitude, the biases and their covariance are kept. Counted
+   init_state_reset_pos_vel and logged.
+2. Once position and velocity are consistent with the fixes, what a failing pair contradicts is the attitude. A
+   state consistent at rest is tested again at the first fixes in motion (horizontal speed of the fixes at least
+   align_min_speed_mps); after the reset every fix is tested. A wrong heading shows there as a velocity (then
+   position) innovation once the velocity changes. The state is accepted at a passing pair once the velocity has
+   changed by align_min_speed_mps (at rest: moving; after the reset: the engine's horizontal velocity, fused with the
+   fixes since, against its value once known to a third of that). A failing pair discards the state, counted
+   init_state_rejected and logged: the engine goes back to coarse alignment from the fixes with position, velocity
+   and attitude unknown, as if no initial state had been configured (the biases and their 1-sigma are kept). A
+   heading given wrong at rest is rejected this way; so is a stale state whose heading the vehicle left.
+A state that passes changes nothing.
 In motion (seed 002 step S3-1; Groves 2013 section 14.4.2): with the GNSS velocity v_n of a vehicle whose
 body x axis moves along its velocity (land vehicles, fixed-wing aircraft): yaw = atan2(v_E, v_N) and
 pitch = atan2(-v_D, sqrt(v_N^2 + v_E^2)) (the climb angle); roll 0 with a large variance for ground vehicles.
@@ -132,6 +144,7 @@ def course_alignment(v_n, std_v_n, course_std: float, tilt_std: float) -> tuple[
 
 UNKNOWN_ANGLE_STD = math.pi / math.sqrt(3.0)  # 1-sigma [rad] of an angle uniform in +-180 deg
 AT_REST = "consistent at rest (tested again once moving)"  # Alignment.initial_check of a state so far
+RESET = "position and velocity reset from the fixes (attitude under test)"  # likewise
 
 
 def coarse_initial(initial: InitialState) -> InitialState:
@@ -154,8 +167,9 @@ class Alignment:
     fix / summed over the current rest; prev_track: (t_ns, llh, std_ned) of the last tracked fix; times: data time
     [ns] each state was entered. checking: a configured initial state is under test (check_initial); check_prev:
     (t_ns, llh, std_ned, residual after its update [m, NED] or None when not fused) of the last fix under test;
-    check_strike: why that fix failed the test ("" passed); initial_check: what the test found ("" while untested or
-    without a configured state, AT_REST, "accepted", or "rejected: " and why)."""
+    check_strike: why that fix failed the test ("" passed); check_v_ref: after the reset, the engine's horizontal
+    velocity [m/s, NE] the velocity change is measured from (None until known); initial_check: what the test found
+    ("" while untested or without a configured state, AT_REST, RESET, "accepted", or "rejected: " and why)."""
 
     def __init__(self, config: NavConfig, initial: InitialState, coarse: bool):
         self.config = config
@@ -175,6 +189,7 @@ class Alignment:
         self.checking = not coarse and config.gate_probability > 0.0
         self.check_prev: tuple | None = None
         self.check_strike = ""
+        self.check_v_ref: tuple[float, float] | None = None
         self.initial_check = ""
 
     def start(self, nav) -> None:
@@ -195,21 +210,25 @@ class Alignment:
         log.info("alignment %s at t=%.3f s (%s), heading 1-sigma %.2f deg", state, t_ns / NS, detail,
                  math.degrees(math.sqrt(nav.P[8, 8])))
 
-    def check_initial(self, nav, ctx, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> bool:
+    def check_initial(self, nav, ctx, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> str:
         """Test the configured initial state at a fix (ctx: zennav.nav.aid.FixContext; z, H, R: the fix's position
         innovation [m, NED], its H and R) before its update (see the module docstring). A failed test is a strike (the
-        fix goes on to the normal gate); a second in a row, the fixes at most outage_timeout_s apart, rejects the
-        state: returns True, the engine is coarse again and the fix is for the coarse alignment. A state consistent
-        with fixes at rest is tested again at the first fixes in motion (a heading is seen only then)."""
+        fix goes on to the normal gate); a second in a row, the fixes at most outage_timeout_s apart, resets position
+        and velocity from the fix (returns "reset": the fix is used, not to be fused) or, once they were consistent
+        (at rest, or reset), discards the state (returns "rejected": the engine is coarse again and the fix is for
+        the coarse alignment). Returns "" otherwise."""
         fix, k, prev, cfg = ctx.fix, H.shape[1], self.check_prev, self.config
         dt = math.inf if prev is None else (fix.t_ns - prev[0]) / NS
         pair = 0.0 < dt <= cfg.outage_timeout_s  # the fix before was under test too, not long before
         vel = self._check_velocity(nav, ctx, z, R, prev if pair else None)
         v_fix = None if vel is None else vel[0]
-        moving = v_fix is not None and math.hypot(v_fix[0], v_fix[1]) >= cfg.align_min_speed_mps
+        if self.initial_check == RESET:
+            moving = self._velocity_changed(nav)
+        else:
+            moving = v_fix is not None and math.hypot(v_fix[0], v_fix[1]) >= cfg.align_min_speed_mps
         if self.initial_check == AT_REST and not moving:  # nothing new to test until it moves
             self.check_strike = ""
-            return False
+            return ""
         thr = nav.gate_threshold(3)
         nis = float(z @ np.linalg.solve(H @ nav.P[:k, :k] @ H.T + R, z))
         nis_v = math.nan if vel is None else float(vel[1] @ np.linalg.solve(vel[2], vel[1]))
@@ -219,16 +238,31 @@ class Alignment:
         elif nis_v > thr:
             fail = f"velocity NIS {nis_v:.1f} > {thr:.1f}, innovation {np.round(vel[1], 2)} m/s"
         if fail and self.check_strike and pair:
-            return self._reject_initial(nav, ctx, f"{self.check_strike}; then {fail}")
+            detail = f"{self.check_strike}; then {fail}"
+            if self.initial_check in (AT_REST, RESET):
+                return self._reject_initial(nav, ctx, detail)
+            assert prev is not None  # a pair
+            return self._reset_position_velocity(nav, ctx, detail, prev)
         self.check_strike = fail
         if not fail and vel is not None:
             if moving:
                 self.checking, self.check_prev, self.initial_check = False, None, "accepted"
                 log.info("t=%.3f s: configured initial state accepted (position NIS %.2f, velocity NIS %.2f)",
                          fix.t_ns / NS, nis, nis_v)
-            else:
+            elif self.initial_check != RESET:
                 self.initial_check = AT_REST
-        return False
+        return ""
+
+    def _velocity_changed(self, nav) -> bool:
+        """After the reset: whether the engine's horizontal velocity has changed by align_min_speed_mps since
+        check_v_ref, its velocity once known to a third of that (1-sigma; the reset's own velocity may be a noisy
+        displacement over one fix interval); sets check_v_ref then."""
+        cfg, s = self.config, nav.state
+        if self.check_v_ref is None:
+            if max(nav.P[3, 3], nav.P[4, 4]) <= (cfg.align_min_speed_mps / 3.0) ** 2:
+                self.check_v_ref = (float(s.vn), float(s.ve))
+            return False
+        return math.hypot(s.vn - self.check_v_ref[0], s.ve - self.check_v_ref[1]) >= cfg.align_min_speed_mps
 
     def _check_velocity(self, nav, ctx, z: np.ndarray, R: np.ndarray, prev: tuple | None):
         """(v_fix, z_v, S_v): the antenna velocity of the fixes [m/s, NED], the INS's minus it and its covariance, from
@@ -258,9 +292,25 @@ class Alignment:
             residual = position_model(nav.state, nav.lever_b, llh, v_ant_n, ctx.age_s)[0]
         self.check_prev = (int(fix.t_ns), llh, np.asarray(std_pos, dtype=float), residual)
 
-    def _reject_initial(self, nav, ctx, detail: str) -> bool:
-        """Two fixes in a row contradict the configured initial state: discard it (position, velocity, attitude) and
-        go back to coarse alignment from the fixes, from this one on."""
+    def _reset_position_velocity(self, nav, ctx, detail: str, prev: tuple) -> str:
+        """Stage 1 (see the module docstring): two fixes in a row (prev: the one before) contradict a state never
+        consistent with them: position and velocity from the fixes, attitude and biases kept; the attitude stays under
+        test at the fixes that follow."""
+        fix, cfg = ctx.fix, self.config
+        nav.counters["init_state_reset_pos_vel"] += 1
+        self.initial_check = RESET
+        std_pos = np.maximum(fix.std_ned, cfg.pos_std_floor_m)
+        v, std_v = self._fix_velocity(fix, std_pos, prev[:3])
+        self._track(nav, fix, ctx.omega_ib_b, v, std_pos, std_v)
+        nav.hold_learning(fix.t_ns)
+        self.check_strike, self.check_v_ref = "", None
+        log.warning("t=%.3f s: configured initial position and velocity reset, the first GNSS fixes contradict them "
+                    "(%s); attitude kept, tested at the next fixes", fix.t_ns / NS, detail)
+        return "reset"
+
+    def _reject_initial(self, nav, ctx, detail: str) -> str:
+        """Two fixes in a row contradict the configured initial state once consistent: discard it (position, velocity,
+        attitude) and go back to coarse alignment from the fixes, from this one on."""
         t_ns = ctx.fix.t_ns
         nav.counters["init_state_rejected"] += 1
         self.initial_check = f"rejected: {detail}"
@@ -277,7 +327,7 @@ class Alignment:
         self.seg, self.rest, self.rest_prev = [0.0] * 7, [0.0] * 7, False
         self._set_state(nav, AlignState.COARSE, t_ns, "initial state rejected")
         ctx.coarse = True
-        return True
+        return "rejected"
 
     def monitored(self) -> bool:
         """Whether the sources' consistency monitors run: once aligned, and in fine alignment after a coarse one. While
@@ -318,14 +368,14 @@ class Alignment:
                      math.degrees(pitch), math.degrees(std), source)
         self.tilt_std, self.tilt_source = float(std), source
 
-    def _fix_velocity(self, fix: GnssFix, std_pos: np.ndarray):
+    def _fix_velocity(self, fix: GnssFix, std_pos: np.ndarray, prev: tuple | None):
         """NED velocity [m/s] of the antenna at a fix and its 1-sigma: the reported one (floored), else the
-        difference with the last tracked fix when it is at most outage_timeout_s old; (None, None) otherwise."""
+        difference with the fix before, prev = (t_ns, llh, std_pos), when it is at most outage_timeout_s old;
+        (None, None) otherwise."""
         cfg = self.config
         if fix.v_n is not None and cfg.use_gnss_velocity:
             assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
             return np.asarray(fix.v_n, dtype=float), np.maximum(fix.std_v_n, cfg.vel_std_floor_mps)
-        prev = self.prev_track
         if prev is None:
             return None, None
         dt = (fix.t_ns - prev[0]) / NS
@@ -340,7 +390,7 @@ class Alignment:
         align_in_motion (the fix that started the filter)."""
         cfg = self.config
         std_pos = np.maximum(fix.std_ned, cfg.pos_std_floor_m)
-        v, std_v = self._fix_velocity(fix, std_pos)
+        v, std_v = self._fix_velocity(fix, std_pos, self.prev_track)
         seg, rest = self.seg, self.rest
         self.tilt_std += cfg.imu_noise.gyro_bias_std * seg[6]  # roll/pitch drift on the gyro since the last fix
         still = v is not None and math.hypot(v[0], v[1]) <= cfg.align_still_speed_mps + 3.0 * max(std_v[0], std_v[1])
@@ -422,6 +472,7 @@ class Alignment:
                 "rest_prev": bool(self.rest_prev),
                 "prev_track": None if track is None else [int(track[0]), track[1].tolist(), track[2].tolist()],
                 "checking": bool(self.checking), "initial_check": self.initial_check, "check_strike": self.check_strike,
+                "check_v_ref": None if self.check_v_ref is None else list(self.check_v_ref),
                 "check_prev": None if self.check_prev is None else [int(self.check_prev[0])] + [
                     None if x is None else x.tolist() for x in self.check_prev[1:]]}
 
@@ -436,6 +487,8 @@ class Alignment:
                                                       np.array(track[2], dtype=float))
         self.checking, self.initial_check, self.check_strike = bool(st["checking"]), st["initial_check"], \
             st["check_strike"]
+        ref = st["check_v_ref"]
+        self.check_v_ref = None if ref is None else (float(ref[0]), float(ref[1]))
         prev = st["check_prev"]
         self.check_prev = None if prev is None else (int(prev[0]), *(None if x is None else np.array(x, dtype=float)
                                                                      for x in prev[1:]))

@@ -60,7 +60,7 @@ __all__ = ["AidReport", "NavSolution", "Navigator", "correct_nav"]
 log = logging.getLogger("zennav.nav")
 
 LEARN_SETTLE_S = 10.0  # no training samples for this long after an outage or a covariance reset [s]
-STATE_FORMAT = "zennav.nav.Navigator/3"
+STATE_FORMAT = "zennav.nav.Navigator/4"
 
 
 @dataclass

@@ -3,9 +3,11 @@ outage declaration and recovery; during coarse alignment it hands the fix to the
 velocity. Models in zennav.nav.aiding; the fix is fused at its own time (the engine splits the IMU interval).
 
 Faults, each rejection counted under its reason and reported:
-- initial state (init_state_rejected): while a configured initial state is under test (its first fixes, and its
-  first fixes in motion), each fix is first tested against it (zennav.nav.alignment, Alignment.check_initial); two
-  contradicting fixes in a row send the engine back to coarse alignment, the second one tracked;
+- initial state (init_state_reset_pos_vel, init_state_rejected): while a configured initial state is under test
+  (its first fixes, and its first fixes after a velocity change), each fix is first tested against it
+  (zennav.nav.alignment, Alignment.check_initial); two contradicting fixes in a row reset position and velocity
+  from the second one (which is then not fused) or, once the state was consistent, send the engine back to coarse
+  alignment, the second one tracked;
 - input: gnss_malformed, gnss_duplicate, gnss_out_of_order, gnss_fix_quality, gnss_few_satellites, gnss_std,
   gnss_stale (older than MAX_FIX_AGE_S behind the IMU);
 - jump (gnss_pos_jump): further than max_jump_m horizontally from the INS prediction and outside the chi-square
@@ -51,13 +53,15 @@ _VALID = GnssState.VALID  # (an enum member lookup costs a tenth of a microsecon
 class FixContext:
     """A GNSS fix at the engine's time: age_s = IMU time minus fix time [s] (> 0 only for a fix that arrived
     after the IMU passed its time), omega_ib_b [rad/s] the bias-corrected body rate of the last IMU interval,
-    coarse: the engine was in coarse alignment when the fix came; position_fused: set by the position source."""
+    coarse: the engine was in coarse alignment when the fix came; position_fused: set by the position source;
+    reset: the position source reset position and velocity from the fix (the velocity source leaves it)."""
 
     fix: GnssFix
     age_s: float
     omega_ib_b: np.ndarray
     coarse: bool
     position_fused: bool = False
+    reset: bool = False
 
 
 def adaptive_r(config: NavConfig, dim: int = 3) -> AdaptiveR | None:
@@ -144,8 +148,16 @@ class GnssPosition(AidSource):
         std_pos = np.maximum(fix.std_ned, self.config.pos_std_floor_m)
         R = np.diag(np.square(std_pos))
         checking = not ctx.coarse and nav.alignment.checking
-        if ctx.coarse or (checking and nav.alignment.check_initial(nav, ctx, z, H, R)):
+        verdict = nav.alignment.check_initial(nav, ctx, z, H, R) if checking else ""
+        if ctx.coarse or verdict == "rejected":
             self._coarse_fix(nav, ctx, fix_llh, z)
+            return False
+        if verdict == "reset":  # position and velocity now at this fix: used, not fused
+            ctx.reset = True
+            self.report(nav, fix.t_ns, fix_llh.tolist(), z.tolist(), [], float("nan"), False,
+                        "init_state_reset_pos_vel")
+            nav.alignment.check_fused(nav, ctx, std_pos, True)
+            self._fix_used(nav, fix.t_ns)
             return False
         m = Measurement(fix.t_ns, fix_llh, z, H, R)
         if self._gate_trapped(fix.t_ns, z):
@@ -157,16 +169,7 @@ class GnssPosition(AidSource):
         if checking and nav.alignment.checking:  # the configured initial state is still under test
             nav.alignment.check_fused(nav, ctx, std_pos, fused)
         if fused:
-            if 0 < (fix.t_ns - self.valid_t_ns) / NS < 5.0:
-                self.interval_s = (fix.t_ns - self.valid_t_ns) / NS
-            self.valid_t_ns = fix.t_ns
-            self.streak_start_t_ns, self.streak_fixes, self.streak_prev = None, 0, None
-            if self.gnss_state != GnssState.VALID:
-                nav.hold_learning(fix.t_ns)
-                self._suspect_ins(fix.t_ns)
-                log.warning("GNSS recovered at t=%.3f s after outage", fix.t_ns / NS)
-                nav.counters["outage_recovered"] += 1
-            self.gnss_state = GnssState.VALID
+            self._fix_used(nav, fix.t_ns)
         else:
             if self.streak_start_t_ns is None:
                 self.streak_start_t_ns = fix.t_ns
@@ -174,6 +177,19 @@ class GnssPosition(AidSource):
             self.streak_prev = (fix.t_ns, float(z[0]), float(z[1]))
         ctx.position_fused = fused
         return fused
+
+    def _fix_used(self, nav, t_ns: int) -> None:
+        """A fix at t_ns was fused (or reset the INS to it): the outage clock, the run of rejected fixes, a recovery."""
+        if 0 < (t_ns - self.valid_t_ns) / NS < 5.0:
+            self.interval_s = (t_ns - self.valid_t_ns) / NS
+        self.valid_t_ns = t_ns
+        self.streak_start_t_ns, self.streak_fixes, self.streak_prev = None, 0, None
+        if self.gnss_state != GnssState.VALID:
+            nav.hold_learning(t_ns)
+            self._suspect_ins(t_ns)
+            log.warning("GNSS recovered at t=%.3f s after outage", t_ns / NS)
+            nav.counters["outage_recovered"] += 1
+        self.gnss_state = GnssState.VALID
 
     def on_step(self, nav) -> None:
         """Declare an outage when no fix has been fused for outage_timeout_s."""
@@ -292,7 +308,7 @@ class GnssVelocity(AidSource):
 
     def on_input(self, nav, ctx: FixContext) -> bool:
         fix = ctx.fix
-        if ctx.coarse or fix.v_n is None or not self.config.use_gnss_velocity:
+        if ctx.coarse or ctx.reset or fix.v_n is None or not self.config.use_gnss_velocity:
             return False
         fix_v_n = np.asarray(fix.v_n, dtype=float)
         assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
