@@ -197,7 +197,8 @@ def test_fit_to_paramset_to_numpy_prediction():
 
 def test_sigma_is_the_held_out_error_when_the_fit_interpolates():
     """fit_anfis_sigma: the 1-sigma comes from the newest quarter's residuals of a fit on the rest (answer_sigma),
-    at least the training RMSE; with many rules on few noisy samples the training RMSE understates it."""
+    at least the training RMSE; with many rules on few noisy samples the training RMSE understates it. An output
+    the ANFIS has no skill on (a constant plus noise) is answered by its mean, with the mean's held-out 1-sigma."""
     rng = np.random.default_rng(8)
     x = rng.uniform(-2.0, 2.0, size=(120, 3))
     y = np.stack([np.sin(x[:, 0]) + x[:, 1], np.full(120, 0.5), x[:, 2] ** 2], axis=1) + rng.normal(0, 0.3, (120, 3))
@@ -205,9 +206,16 @@ def test_sigma_is_the_held_out_error_when_the_fit_interpolates():
     fit = fit_anfis_sigma(x, y, max_rules=12, config=cfg, device="cpu")
     assert len(fit.arrays["rules"]) == 7  # 120 samples, 3 inputs: 120 // 16
     first = fit_anfis(x[:90], y[:90], n_rules=7, config=cfg, device="cpu")
-    sigma, rho = answer_sigma(an.predict(first.arrays, first.norm, x[90:]) - y[90:])
+    residuals, baseline = an.predict(first.arrays, first.norm, x[90:]) - y[90:], y[:90].mean(axis=0) - y[90:]
+    assert fit.metrics["skill"] == [1, 0, 1]  # the ANFIS fits the noise of the constant output
+    sigma, rho = answer_sigma(np.where([True, False, True], residuals, baseline))
+    np.testing.assert_allclose(fit.metrics["holdout_rmse"], np.sqrt(np.mean(residuals**2, axis=0)), rtol=1e-12)
+    np.testing.assert_allclose(fit.metrics["baseline_rmse"], np.sqrt(np.mean(baseline**2, axis=0)), rtol=1e-12)
     np.testing.assert_allclose(fit.metrics["holdout_rho"], rho, rtol=1e-12)
     np.testing.assert_allclose(fit.metrics["sigma"], np.maximum(sigma, fit.metrics["train_rmse"]), rtol=1e-12)
+    answers = an.predict(fit.arrays, fit.norm, x)
+    np.testing.assert_allclose(answers[:, 1], y[:, 1].mean(), rtol=1e-12)  # the mean answers it
+    assert np.std(answers[:, 0]) > 0.5 and np.std(answers[:, 2]) > 0.5  # the ANFIS answers the others
     assert np.all(np.array(fit.metrics["holdout_rmse"]) > 0.25)  # at least about the noise (0.3) on every output
     assert np.mean(fit.metrics["sigma"]) > 1.2 * np.mean(fit.metrics["train_rmse"])
     with pytest.raises(ValueError):

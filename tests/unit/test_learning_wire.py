@@ -268,6 +268,8 @@ def test_trainer_schedule_in_sample_counts_and_published_set_accepted_by_the_pre
     assert pred.on_model(K.learn_model("anfis-drift"), _wire(msg), 0) and pred.live["drift"].version == 7
     c = node.counters()
     assert (c["sets_drift"], c["through_drift"], c["received_drift"], c["version_drift"]) == (3, 220, 249, 9)
+    by_mean = sum(m["metrics"]["skill"].count(0) for _, m in published)  # outputs the mean answers, counted
+    assert c["outputs_by_mean_drift"] == by_mean and all(len(m["metrics"]["skill"]) == 2 for _, m in published)
 
 
 @pytest.mark.parametrize("compensation", ["anfis", "anfis-pso", "elman"])

@@ -356,12 +356,17 @@ def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig()
                     t_ns=None, answer_period_s: float = 0.0, device=None, minmax=()) -> FitResult:
     """fit_anfis with a k-means rule base on all of x, y (rows in time order, newest last) plus the 1-sigma of its
     answers. Rules: max_rules, fewer while samples are few: at most one consequent parameter per 4 samples per
-    output (n_rules * (n_in + 1) <= N / 4), so that the fit does not interpolate its samples. 1-sigma: a first
-    fit on the oldest (1 - holdout) predicts the newest holdout, and metrics["sigma"] (per output, physical
-    units) is zennav.learn.sigma.answer_sigma of those held-out residuals (their RMS inflated for their
-    correlation one answer apart: answer_period_s over the held-out rows' spacing in t_ns, sample times [ns];
-    no t_ns: the next row), at least the final fit's training RMSE; metrics["holdout_rmse"] and ["holdout_rho"]
-    keep the parts. minmax: as in fit_anfis."""
+    output (n_rules * (n_in + 1) <= N / 4), so that the fit does not interpolate its samples. Validation: a first
+    fit on the oldest (1 - holdout) predicts the newest holdout. Per output, the model with the lower held-out RMS
+    of two answers it: the ANFIS or the intercept-only model (the mean of the target; model selection by the
+    validation error, Hastie, Tibshirani and Friedman, "The Elements of Statistical Learning", 2nd ed., 2009, sec.
+    7.2): an output whose ANFIS has no skill over its mean is answered by the mean (its consequents zero in
+    normalised units), so that a model that does not know an output does not answer it with a prediction worse
+    than the trivial one; metrics["skill"] (per output, 1: the ANFIS answers it). 1-sigma: metrics["sigma"] (per
+    output, physical units) is zennav.learn.sigma.answer_sigma of the chosen model's held-out residuals (their RMS
+    inflated for their correlation one answer apart: answer_period_s over the held-out rows' spacing in t_ns,
+    sample times [ns]; no t_ns: the next row), at least the final model's training RMSE; metrics["holdout_rmse"]
+    (the ANFIS's), ["baseline_rmse"] (the mean's) and ["holdout_rho"] keep the parts. minmax: as in fit_anfis."""
     x, y = _as_xy(x, y)
     n = int(round(len(x) * (1.0 - holdout)))
     if not 0 < n < len(x):
@@ -369,12 +374,20 @@ def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig()
     n_rules = max(1, min(max_rules, len(x) // (4 * (x.shape[1] + 1))))
     first = fit_anfis(x[:n], y[:n], n_rules=n_rules, config=config, device=device, minmax=minmax)
     residuals = anfis_numpy.predict(first.arrays, first.norm, x[n:]) - y[n:]
+    baseline = y[:n].mean(axis=0) - y[n:]
+    holdout_rmse, baseline_rmse = (np.sqrt(np.mean(r**2, axis=0)) for r in (residuals, baseline))
+    skill = holdout_rmse < baseline_rmse
     lag = 1 if t_ns is None else answer_lag(np.asarray(t_ns)[n:], answer_period_s)
-    sigma, rho = answer_sigma(residuals, lag=lag)
+    sigma, rho = answer_sigma(np.where(skill, residuals, baseline), lag=lag)
     fit = fit_anfis(x, y, n_rules=n_rules, config=config, device=device, minmax=minmax)
-    fit.metrics["holdout_rmse"] = np.sqrt(np.mean(residuals**2, axis=0)).tolist()
+    fit.arrays["consequents"][:, :, ~skill] = 0.0  # the mean of y (normalised y is zero-mean)
+    train_rmse = np.sqrt(np.mean((anfis_numpy.predict(fit.arrays, fit.norm, x) - y) ** 2, axis=0))
+    fit.metrics["train_rmse"] = train_rmse.tolist()
+    fit.metrics["holdout_rmse"] = holdout_rmse.tolist()
+    fit.metrics["baseline_rmse"] = baseline_rmse.tolist()
     fit.metrics["holdout_rho"] = rho.tolist()
-    fit.metrics["sigma"] = np.maximum(sigma, fit.metrics["train_rmse"]).tolist()
+    fit.metrics["skill"] = skill.astype(int).tolist()
+    fit.metrics["sigma"] = np.maximum(sigma, train_rmse).tolist()
     return fit
 
 

@@ -14,7 +14,8 @@ Models (settings.model):
   swarm of zennav.learn.pso with a constant inertia 0.7298 and c1 = c2 = 1.49618, Clerc and Kennedy, IEEE TEC
   6(1) 2002; the seed gives the PSO update but no coefficient values) or the improved swarm (optimizer ipso, seed
   003 step 3.3: zennav.learn.pso.IMPROVED). Inputs are z-scored, those of MINMAX_FEATURES min-max scaled.
-  1-sigma: the residuals on the newest quarter of the samples of a fit on the rest (zennav.learn.sigma). torch is
+  1-sigma: the residuals on the newest quarter of the samples of a fit on the rest (zennav.learn.sigma); an output
+  whose ANFIS predicts that quarter no better than the target's mean is answered by the mean (metrics skill). torch is
   imported only inside the fit, or not at all with a ``fitter`` (the trainer's zennav.learn.fit_worker.FitWorker:
   the same fit in a child process).
 - elman (seed 002): ElmanOnline learns every sample in order; its set at n is its state after n samples (weights,
@@ -175,9 +176,10 @@ class Learner:
 
     def counters(self) -> dict[str, int]:
         """<count>_<target>: received, through (the last fit point done), set_through (samples_seen of the last set),
-        min_samples, sets, fit_points, elman_not_ready, fit_errors, requests_early, requests_behind (the trainer's
-        status counters; a lockstep predictor stops waiting for a set through n when min_samples > n or
-        set_through < n <= through: none will come)."""
+        min_samples, sets, fit_points, outputs_by_mean (anfis: outputs of its sets answered by the target's mean),
+        elman_not_ready, fit_errors, requests_early, requests_behind (the trainer's status counters; a lockstep
+        predictor stops waiting for a set through n when min_samples > n or set_through < n <= through: none will
+        come)."""
         t = self.target
         with self.lock:
             c = {f"received_{t}": self.received, f"through_{t}": self.done,
@@ -212,6 +214,9 @@ class Learner:
         metrics = {**metrics, "target": self.target, "samples_seen": n, "model": self.s.model}
         msg = paramset.build(self.name, version, arrays, norm, metrics, kind=kind, created_t_ns=self._last_t_ns)
         self.counts["sets"] += 1
+        # anfis: outputs answered by the target's mean (no held-out skill, zennav.learn.anfis_torch.fit_anfis_sigma)
+        if "skill" in metrics:
+            self.counts["outputs_by_mean"] += metrics["skill"].count(0)
         self.last = {"version": version, "samples_seen": n, "sigma": [round(float(v), 4) for v in metrics["sigma"]]}
         return msg
 

@@ -60,6 +60,10 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
     Elman's is not (15.41-18.69 m). The first two stay off by default; the consistency rule is on (NavConfig,
     deploy/ins.yaml): its figures alone are above, and on sim:car (600 s, 30 s outages every 120 s) it takes
     the sum of the four outage maxima from 12.18 to 10.30 m (Elman) and from 7.97 to 7.72 m (ANFIS).
+  The ANFIS answers an output with no held-out skill over the target's mean by that mean, with the mean's held-out
+  1-sigma (zennav.learn.anfis_torch.fit_anfis_sigma): on the rtklibexplorer drive its fits mostly have no skill on
+  any output (the learned forward speed 2.3-8 m/s off is then the training mean speed, its 1-sigma that of the mean),
+  and its rows become 1.17, 8.06 and 19.11 m at 10, 30 and 60 s (before: 1.31, 9.30 and 22.74 m; README).
 
 An answer is fused only if no GNSS position fix was fused after its query's time (else learned_stale: the filter
 already knows better) and the query is at most NavConfig.learn_answer_max_age_s of data time old (else
