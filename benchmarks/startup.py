@@ -15,8 +15,9 @@
 
 By default it replays rtklibexplorer (the real 100 Hz drive; its loader low-passes it with scipy's filtfilt floats),
 sim:car (the simulator's 600 s drive: its long series read from the simulator's cache, zennav.sim.cache, which the
-warm-up run fills, as after a first run on a machine; --no-cache: generated in every run, ZENNAV_CACHE=0) and a simulated car drive of --kf-gins-duration s at
-200 Hz written as KF-GINS text files (zennav.datasets.kfgins.write_dataset: the issue's case, 30 min).
+warm-up run fills, as after a first run on a machine; --no-cache: generated in every run, ZENNAV_CACHE=0) and a
+simulated car drive of --kf-gins-duration s at 200 Hz written as KF-GINS text files
+(zennav.datasets.kfgins.write_dataset: the issue's case, 30 min).
 
     .venv/bin/python benchmarks/startup.py [--repeat 5] [--kf-gins-duration 1800] [--spec rtklibexplorer ...]
 """

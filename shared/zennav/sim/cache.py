@@ -33,7 +33,7 @@ import numpy as np
 
 log = logging.getLogger("zennav.sim")
 
-MIN_SAMPLES = 50_000  # IMU samples from which a dataset is cached (below, generating takes well under 0.5 s CPU)
+MIN_SAMPLES = 50_000  # IMU samples from which a dataset is cached (below, generating takes about 0.3 s CPU or less)
 MAX_BYTES = 1 << 30  # the cache folder's bound [bytes]
 _SOURCES = ("zennav.sim.cache", "zennav.sim.scenarios", "zennav.sim.sensors", "zennav.sim.trajectory",
             "zennav.nav.earth", "zennav.nav.rotation", "zennav.nav.types")  # the modules the cached series depend on
@@ -73,12 +73,12 @@ def key_text(params: dict) -> str:
 def load_or_make(params: dict, make: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     """make()'s arrays for params: read from the cache when it holds them, else made now and stored."""
     directory = cache_dir()
+    if directory is None:
+        return make()
     try:
         text = key_text(params)
     except TypeError as e:
         log.debug("simulator cache not used: %s", e)
-        directory = None
-    if directory is None:
         return make()
     path = directory / f"{hashlib.sha256(text.encode()).hexdigest()}.npz"
     arrays = _read(path, text)
@@ -97,14 +97,17 @@ def _read(path: Path, text: str) -> dict[str, np.ndarray] | None:
             if _KEY not in z.files or str(z[_KEY]) != text:
                 raise ValueError("its key differs")
             arrays = {name: z[name] for name in z.files if name != _KEY}
-        os.utime(path)  # recently used (eviction order)
-        return arrays
     except FileNotFoundError:
         return None
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
         STATS["unreadable"] += 1
         log.warning("simulator cache file %s unreadable (%s): generating the dataset", path, e)
         return None
+    try:
+        os.utime(path)  # recently used (eviction order)
+    except OSError:
+        pass  # a cache that is read-only for this user: still read
+    return arrays
 
 
 def _write(path: Path, text: str, arrays: dict[str, np.ndarray]) -> None:
