@@ -14,8 +14,10 @@
   for a plain replay).
 
 By default it replays rtklibexplorer (the real 100 Hz drive; its loader low-passes it with scipy's filtfilt floats),
-sim:car (the simulator's 600 s drive, generated at start) and a simulated car drive of --kf-gins-duration s at
-200 Hz written as KF-GINS text files (zennav.datasets.kfgins.write_dataset: the issue's case, 30 min).
+sim:car (the simulator's 600 s drive: its long series read from the simulator's cache, zennav.sim.cache, which the
+warm-up run fills, as after a first run on a machine; --no-cache: generated in every run, ZENNAV_CACHE=0) and a
+simulated car drive of --kf-gins-duration s at 200 Hz written as KF-GINS text files
+(zennav.datasets.kfgins.write_dataset: the issue's case, 30 min).
 
     .venv/bin/python benchmarks/startup.py [--repeat 5] [--kf-gins-duration 1800] [--spec rtklibexplorer ...]
 """
@@ -111,12 +113,17 @@ def main() -> int:
     ap.add_argument("--kf-gins-duration", type=float, default=1800.0,
                     help="[s] of the simulated car drive written as KF-GINS files (0: none)")
     ap.add_argument("--json", default=None, help="also write the results here")
+    ap.add_argument("--no-cache", action="store_true",
+                    help="the children generate simulated datasets in every run (ZENNAV_CACHE=0)")
     ap.add_argument("--no-pyc", action="store_true",
                     help="keep PYTHONDONTWRITEBYTECODE if set (no .pyc written; those already written are read)")
     args = ap.parse_args()
     if not args.no_pyc:
         ENV.pop("PYTHONDONTWRITEBYTECODE", None)
-    print(f"bytecode cache (.pyc): {'off' if ENV.get('PYTHONDONTWRITEBYTECODE') else 'on'}", flush=True)
+    if args.no_cache:
+        ENV["ZENNAV_CACHE"] = "0"
+    print(f"bytecode cache (.pyc): {'off' if ENV.get('PYTHONDONTWRITEBYTECODE') else 'on'}, simulator cache: "
+          f"{'off' if ENV.get('ZENNAV_CACHE') == '0' else 'on'}", flush=True)
     results: dict = {}
     wall([str(BIN / "zennav"), "--help"])
     helps = [wall([str(BIN / "zennav"), "--help"]) for _ in range(args.repeat)]

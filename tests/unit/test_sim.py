@@ -1,6 +1,10 @@
 """Simulator: exact truth, ideal IMU increments, IMU/GNSS error statistics, datasets and reproducibility."""
 from __future__ import annotations
 
+import logging
+import os
+from collections import Counter
+
 import numpy as np
 import pytest
 
@@ -14,6 +18,7 @@ from zennav.nav.rotation import (
     wrap_angle,
 )
 from zennav.nav.types import NS, FixType, ImuNoise
+from zennav.sim import cache
 from zennav.sim.scenarios import IMU_GRADES, make_dataset, true_biases
 from zennav.sim.sensors import (
     antenna_truth,
@@ -354,3 +359,88 @@ def test_ideal_grade_gives_noise_free_increments():
     assert ds.config.imu_noise == ImuNoise(0.0, 0.0, 0.0, 0.0, 3600.0, 3600.0)
     with pytest.raises(ValueError):
         make_dataset("car", duration_s=10.0, imu_grade="unobtainium")
+
+
+# --- the cache of generated series (zennav.sim.cache) ---------------------------------------------------
+
+
+@pytest.fixture
+def sim_cache(tmp_path, monkeypatch):
+    """The simulator's cache in tmp_path, used for datasets of any size, its counters from zero: the folder."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("ZENNAV_CACHE", raising=False)
+    monkeypatch.setattr(cache, "MIN_SAMPLES", 0)
+    monkeypatch.setattr(cache, "STATS", Counter())
+    return tmp_path / "zennav" / "sim"
+
+
+def _assert_same_series(a, b):
+    """The series the cache provides, as the datasets a and b expose them, bit for bit (and their summaries)."""
+    ea, eb = true_biases(a), true_biases(b)
+    for x, y in [(a.imu.dtheta, b.imu.dtheta), (a.imu.dvel, b.imu.dvel), (ea.gyro_bias, eb.gyro_bias),
+                 (ea.accel_bias, eb.accel_bias), (a.notes["gyro_scale"], b.notes["gyro_scale"]),
+                 (a.notes["accel_scale"], b.notes["accel_scale"]), (a.truth.llh, b.truth.llh),
+                 (a.truth.v_n, b.truth.v_n), (a.truth.euler, b.truth.euler), (a.initial.llh, b.initial.llh),
+                 (a.initial.v_n, b.initial.v_n), (a.gnss.llh, b.gnss.llh)]:
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    assert a.notes["gyro_bias_std_deg_h"] == b.notes["gyro_bias_std_deg_h"]
+
+
+def test_cached_series_are_the_generated_ones_bit_for_bit(sim_cache, monkeypatch):
+    kw = dict(duration_s=20.0, seed=3, scale_ppm=300.0)
+    monkeypatch.setenv("ZENNAV_CACHE", "0")
+    fresh = make_dataset("car", **kw)
+    assert not sim_cache.exists() and not cache.STATS  # off: neither read nor written
+    monkeypatch.delenv("ZENNAV_CACHE")
+    stored = make_dataset("car", **kw)
+    read = make_dataset("car", **kw)
+    assert cache.STATS == Counter(miss=1, stored=1, hit=1) and len(list(sim_cache.glob("*.npz"))) == 1
+    _assert_same_series(fresh, stored)
+    _assert_same_series(fresh, read)
+    assert np.any(read.notes["gyro_scale"] != 0.0)
+    other = make_dataset("car", **{**kw, "seed": 4})  # another parameter: another key, another file
+    assert cache.STATS["miss"] == 2 and len(list(sim_cache.glob("*.npz"))) == 2
+    assert not np.allclose(other.imu.dvel, fresh.imu.dvel)
+
+
+def test_the_key_holds_the_parameters_and_the_sources(monkeypatch):
+    text = cache.key_text({"seed": 1, "x": np.arange(3.0)})
+    assert text != cache.key_text({"seed": 1, "x": np.arange(3)})  # the dtype counts
+    assert text != cache.key_text({"seed": 2, "x": np.arange(3.0)})
+    monkeypatch.setattr(cache, "_SOURCES", cache._SOURCES[1:])
+    assert text != cache.key_text({"seed": 1, "x": np.arange(3.0)})
+    with pytest.raises(TypeError):
+        cache.key_text({"seed": object()})  # no key from a repr that may name a memory address
+
+
+def test_an_unreadable_or_unwritable_cache_is_logged_and_the_series_generated(sim_cache, monkeypatch, caplog):
+    kw = dict(duration_s=10.0, seed=1)
+    first = make_dataset("static", **kw)
+    (path,) = sim_cache.glob("*.npz")
+    path.write_bytes(path.read_bytes()[:1000])  # truncated
+    with caplog.at_level(logging.WARNING, logger="zennav.sim"):
+        _assert_same_series(first, make_dataset("static", **kw))
+    assert cache.STATS["unreadable"] == 1 and "unreadable" in caplog.text
+    np.savez(path, dtheta=np.zeros((3, 3)), __key__=np.array("another key"))  # not this key's
+    _assert_same_series(first, make_dataset("static", **kw))
+    assert cache.STATS["unreadable"] == 2 and cache.STATS["stored"] == 3
+    _assert_same_series(first, make_dataset("static", **kw))  # rewritten: read
+    assert cache.STATS["hit"] == 1
+    blocked = sim_cache.parent.parent / "file"
+    blocked.write_text("")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocked))  # its folder cannot be made
+    _assert_same_series(first, make_dataset("static", **kw))
+    assert cache.STATS["unwritable"] == 1
+
+
+def test_the_cache_stays_under_its_bound(sim_cache, monkeypatch):
+    make_dataset("static", duration_s=10.0, seed=1)
+    (old,) = sim_cache.glob("*.npz")
+    os.utime(old, (1e9, 1e9))  # long unused
+    stale = sim_cache / ".crashed.tmp"
+    stale.write_bytes(b"x")
+    os.utime(stale, (1e9, 1e9))
+    monkeypatch.setattr(cache, "MAX_BYTES", int(1.5 * old.stat().st_size))
+    make_dataset("static", duration_s=10.0, seed=2)
+    (new,) = sim_cache.glob("*.npz")
+    assert new != old and cache.STATS["evicted"] == 1 and not stale.exists()

@@ -14,9 +14,10 @@ import numpy as np
 
 from ..nav import earth
 from ..nav.rotation import wrap_angle
-from ..nav.types import NS, Dataset, FixType, ImuNoise, InitialState, NavConfig, Truth
+from ..nav.types import NS, Dataset, FixType, ImuData, ImuNoise, InitialState, NavConfig, Truth
+from . import cache
 from .sensors import ImuErrors, gauss_markov, simulate_gnss, simulate_imu, simulate_odometer
-from .trajectory import make_trajectory
+from .trajectory import Trajectory, make_trajectory
 
 _DEG_PER_H = math.radians(1.0) / 3600.0  # rad/s
 _PER_RT_H = 1.0 / 60.0  # 1 / sqrt(h) in 1 / sqrt(s)
@@ -87,6 +88,7 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     their own stream). The initial state is the truth at the first IMU sample, plus (perturb_initial)
     an error drawn from its stated std. A car also has an odometer at the IMU (odo_rate_hz, scale-factor error
     odo_scale_error [ratio], white noise odo_std_mps [m/s]; notes["odo_scale_error"])."""
+    params = dict(locals())  # every argument: the key of the generated series in zennav.sim.cache
     if imu_grade not in IMU_GRADES:
         raise ValueError(f"unknown IMU grade {imu_grade!r}; choose from {sorted(IMU_GRADES)}")
     grade = IMU_GRADES[imu_grade]
@@ -99,34 +101,34 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
     n_imu = int(round(duration_s * imu_rate_hz)) + 1
     imu_t_ns = t0_ns + np.arange(n_imu, dtype=np.int64) * int(round(NS / imu_rate_hz))
     sg_ppm, sa_ppm = (float(scale_ppm), float(scale_ppm)) if isinstance(scale_ppm, (int, float)) else scale_ppm
-    gyro_scale = accel_scale = np.zeros((n_imu, 3))
     if sg_ppm or sa_ppm:
         noise = replace(noise, gyro_scale_std=sg_ppm * _PPM, accel_scale_std=sa_ppm * _PPM,
                         gyro_scale_tau=noise.gyro_bias_tau, accel_scale_tau=noise.accel_bias_tau)
-        rng_scale, dt = np.random.default_rng(ss_scale), int(round(NS / imu_rate_hz)) / NS
-        gyro_scale = gauss_markov(n_imu, dt, noise.gyro_scale_std, noise.gyro_scale_tau, rng_scale)
-        accel_scale = gauss_markov(n_imu, dt, noise.accel_scale_std, noise.accel_scale_tau, rng_scale)
-    imu, errors = simulate_imu(traj, imu_t_ns, t0_ns, noise, np.random.default_rng(ss_imu), gyro_scale=gyro_scale,
-                               accel_scale=accel_scale)
+
+    def generate() -> dict[str, np.ndarray]:
+        return _imu_and_truth(traj, imu_t_ns, t0_ns, int(round(NS / imu_rate_hz)) / NS, noise, ss_imu, ss_scale)
+
+    series = cache.load_or_make(params, generate) if n_imu >= cache.MIN_SAMPLES else generate()
+    gyro_scale, accel_scale = (series.get(k, np.zeros((n_imu, 3))) for k in ("gyro_scale", "accel_scale"))
+    imu = ImuData(imu_t_ns, series["dtheta"], series["dvel"])
+    errors = ImuErrors(series["gyro_bias"], series["accel_bias"])
     if gnss_fix is None:
         gnss_fix = FixType.RTK_FIXED if max(gnss_std_ned) <= 0.1 else FixType.SINGLE
     gnss = simulate_gnss(traj, _gnss_times(t0_ns, int(imu_t_ns[-1]), gnss_rate_hz), t0_ns, lever_arm_b, gnss_std_ned,
                          gnss_vel_std, np.random.default_rng(ss_gnss), gnss_fix, num_sats)
 
-    st = traj.state((imu_t_ns - t0_ns) / NS)
-    euler = st.euler.copy()
-    euler[:, 2] = wrap_angle(euler[:, 2])
-    truth = Truth(imu_t_ns, st.llh, st.v_n, euler, source="simulator (exact)")
+    llh, v_n, euler = series["llh"], series["v_n"], series["euler"]
+    truth = Truth(imu_t_ns, llh, v_n, euler, source="simulator (exact)")
 
     std_euler = np.radians([grade.att_std_deg[0], grade.att_std_deg[0], grade.att_std_deg[1]])
     rng = np.random.default_rng(ss_init)
     err_pos_ned, err_v_n, err_euler = (s * rng.standard_normal(3) * perturb_initial
                                        for s in (INITIAL_STD_POS_NED, INITIAL_STD_V_N, std_euler))
-    llh0 = st.llh[0] + earth.dr_to_dllh(st.llh[0, 0], st.llh[0, 2]) * err_pos_ned
+    llh0 = llh[0] + earth.dr_to_dllh(llh[0, 0], llh[0, 2]) * err_pos_ned
     euler0 = euler[0] + err_euler
     euler0[2] = wrap_angle(euler0[2])
     initial = InitialState(
-        t_ns=int(imu_t_ns[0]), llh=llh0, v_n=st.v_n[0] + err_v_n, euler=euler0,
+        t_ns=int(imu_t_ns[0]), llh=llh0, v_n=v_n[0] + err_v_n, euler=euler0,
         std_pos_ned=INITIAL_STD_POS_NED.copy(), std_v_n=INITIAL_STD_V_N.copy(), std_euler=std_euler,
         std_gyro_bias=np.full(3, noise.gyro_bias_std), std_accel_bias=np.full(3, noise.accel_bias_std),
     )
@@ -153,6 +155,31 @@ def make_dataset(kind: str = "car", duration_s: float = 600.0, imu_rate_hz: floa
         notes.update(odo_scale_error=odo_scale_error, odo_std_mps=odo_std_mps, odo_rate_hz=odo_rate_hz)
     name = f"sim-{kind}-{imu_grade}-seed{seed}"
     return Dataset(name, imu, gnss, config, initial, truth, notes, odometer)
+
+
+def _imu_and_truth(traj: Trajectory, imu_t_ns: np.ndarray, t0_ns: int, dt: float, noise: ImuNoise,
+                   ss_imu: np.random.SeedSequence, ss_scale: np.random.SeedSequence) -> dict[str, np.ndarray]:
+    """The long series of a dataset, each (N, 3) at the IMU samples imu_t_ns [ns] (t0_ns: trajectory time 0, dt: their
+    period [s]): IMU increments dtheta, dvel [rad, m/s], true biases gyro_bias, accel_bias [rad/s, m/s^2],
+    scale-factor errors gyro_scale, accel_scale [-] (only where noise has them; ss_scale's stream) and the truth llh
+    [rad, rad, m], v_n [m/s], euler [rad] (yaw wrapped); the IMU errors from ss_imu's stream. Each C-contiguous, as
+    read from the cache (zennav.sim.cache)."""
+    n_imu = len(imu_t_ns)
+    out = {}
+    gyro_scale = accel_scale = np.zeros((n_imu, 3))
+    if noise.gyro_scale_std or noise.accel_scale_std:
+        rng_scale = np.random.default_rng(ss_scale)
+        out["gyro_scale"] = gyro_scale = gauss_markov(n_imu, dt, noise.gyro_scale_std, noise.gyro_scale_tau, rng_scale)
+        out["accel_scale"] = accel_scale = gauss_markov(n_imu, dt, noise.accel_scale_std, noise.accel_scale_tau,
+                                                        rng_scale)
+    imu, errors = simulate_imu(traj, imu_t_ns, t0_ns, noise, np.random.default_rng(ss_imu), gyro_scale=gyro_scale,
+                               accel_scale=accel_scale)
+    st = traj.state((imu_t_ns - t0_ns) / NS)
+    euler = st.euler.copy()
+    euler[:, 2] = wrap_angle(euler[:, 2])
+    out.update(dtheta=imu.dtheta, dvel=imu.dvel, gyro_bias=errors.gyro_bias, accel_bias=errors.accel_bias,
+               llh=st.llh, v_n=st.v_n, euler=euler)
+    return {k: np.ascontiguousarray(a) for k, a in out.items()}
 
 
 def true_biases(dataset: Dataset) -> ImuErrors:
