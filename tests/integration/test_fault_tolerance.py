@@ -298,11 +298,15 @@ def test_lockstep_learning_ins_killed_and_resumed_equals_the_in_process_loop(clu
         same = np.all(got == want, axis=1)
         assert np.array_equal(same | fused_at, np.ones(n, dtype=bool)), f"{field} differs from the in-process loop"
     # the samples the killed ins had sent after its last checkpoint, sent again by the resumed one: as many as
-    # it navigated between the checkpoint and the kill (none when it was killed right after a checkpoint)
+    # it navigated between the checkpoint and the kill (none when it was killed right after a checkpoint). The
+    # trainer takes each distinct sample once. Its count of those it dropped as sent again may differ from this
+    # subscriber's by the one sample in flight at the kill -9, which one of the two may have received and the
+    # other not.
     sent = [(m["variant"], m["t_ns"], m.get("index")) for m in learn.msgs()]
     sent_again = len(sent) - len(set(sent))
-    tc = wait_counter(svc, "trainer", lambda c: c.get("duplicate_samples", 0) == sent_again, 20,
-                      f"the trainer's count of the {sent_again} samples sent again")
+    tc = wait_counter(svc, "trainer", lambda c: c.get("received_body_velocity", 0) == len(set(sent)), 20,
+                      f"the trainer to take the {len(set(sent))} distinct samples once each")
+    assert abs(tc["counters"].get("duplicate_samples", 0) - sent_again) <= 1, (tc["counters"], sent_again)
     sets = models.wait(lambda c: c.msgs() if len(c.msgs()) >= loop.version else None, 20, "the trainer's sets")
     assert [m["metrics"]["samples_seen"] for m in sets] == [60, loop.core.live["body_velocity"].samples_seen]
     c = tc["counters"]
