@@ -15,6 +15,7 @@ machine and read back bit for bit:
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import json
@@ -58,15 +59,21 @@ def _jsonable(x):
     raise TypeError(f"{type(x).__name__} is not a cacheable parameter")
 
 
-def key_text(params: dict) -> str:
-    """The cache key's text for params (JSON of plain values, tuples, lists, dicts and numpy arrays; anything else:
-    TypeError) with the simulator's source hash, numpy's version and the machine type."""
+@functools.cache
+def _sources_hash(modules: tuple[str, ...]) -> str:
+    """SHA-256 of the source files of modules, read once per process."""
     sources = hashlib.sha256()
-    for name in _SOURCES:
+    for name in modules:
         path = importlib.import_module(name).__file__
         assert path is not None
         sources.update(Path(path).read_bytes())
-    return json.dumps({"params": params, "sources": sources.hexdigest(), "numpy": np.__version__,
+    return sources.hexdigest()
+
+
+def key_text(params: dict) -> str:
+    """The cache key's text for params (JSON of plain values, tuples, lists, dicts and numpy arrays; anything else:
+    TypeError) with the simulator's source hash, numpy's version and the machine type."""
+    return json.dumps({"params": params, "sources": _sources_hash(_SOURCES), "numpy": np.__version__,
                        "machine": platform.machine()}, sort_keys=True, default=_jsonable)
 
 
