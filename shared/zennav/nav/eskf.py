@@ -168,8 +168,9 @@ class ErrorStateKF:
 
 
 def small_inverse(S: np.ndarray) -> np.ndarray:
-    """Inverse of a small square matrix S (an innovation covariance): by cofactors (Cramer's rule) up to 3 x 3, a
-    few float operations where numpy.linalg's call costs tens of microseconds (issue 17); LAPACK above."""
+    """Inverse of a small square matrix S (an innovation covariance H P H' + R: positive definite, conditioned by
+    R): by cofactors (Cramer's rule) up to 3 x 3, a few float operations where a numpy.linalg call costs tens of
+    microseconds (issue 17); LAPACK above."""
     m = S.shape[0]
     if m == 1:
         return 1.0 / S
