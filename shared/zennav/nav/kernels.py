@@ -330,8 +330,8 @@ def compiled() -> types.SimpleNamespace:
         for f in _KERNELS:
             g = dict(f.__globals__)
             ns[f.__name__] = numba.njit(cache=True)(types.FunctionType(f.__code__, g, f.__name__, f.__defaults__))
-        for f in _KERNELS:  # every copy calls the compiled functions
-            ns[f.__name__].py_func.__globals__.update(ns)
+        for f in _KERNELS:  # every copy calls the compiled functions (NUMBA_DISABLE_JIT=1: njit returns the copy)
+            getattr(ns[f.__name__], "py_func", ns[f.__name__]).__globals__.update(ns)
         _compiled = types.SimpleNamespace(**ns)
         # load (or compile) run_block now, for the argument types Navigator.run_imu passes: a call on no samples
         z2, zi = np.zeros((1, 3)), np.zeros(1, dtype=np.int64)
