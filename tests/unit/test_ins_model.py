@@ -113,7 +113,7 @@ def test_joseph_update_keeps_covariance_symmetric_positive_definite():
         assert res.fused
         if k % 5 == 0:
             Phi = np.eye(15) + 0.01 * rng.normal(size=(15, 15))
-            kf.propagate(Phi, np.diag(rng.uniform(0, 1e-6, 15)))
+            kf.propagate(Phi, rng.uniform(0, 1e-6, 15), 1.0)
         assert np.array_equal(kf.P, kf.P.T)
         assert np.linalg.eigvalsh(kf.P).min() > 0.0
 

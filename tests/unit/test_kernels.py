@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from zennav.nav import kernels
+from zennav.nav.eskf import discretize
 from zennav.nav.navigator import Navigator
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
@@ -54,3 +56,17 @@ def test_compiled_loop_gives_the_python_floats():
         for a, b in zip(_fields(step), _fields(jit)):
             np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
         assert step.status["counters"] == jit.status["counters"]
+
+
+def test_propagation_folds_the_trapezoidal_process_noise_in():
+    """kernels.propagate: Phi (P + Q dt/2) Phi' + Q dt/2 is discretize's Phi P Phi' + Qd (one triple product)."""
+    rng = np.random.default_rng(7)
+    A = rng.normal(size=(21, 21))
+    P = A @ A.T
+    F = rng.normal(size=(21, 21))
+    q = rng.uniform(0.0, 1.0, 21)
+    Phi, Qd = discretize(F, q, 0.05)
+    P1 = kernels.propagate(P, Phi, q, 0.05)
+    np.testing.assert_allclose(P1, Phi @ P @ Phi.T + Qd, rtol=1e-12, atol=1e-12 * np.abs(P1).max())
+    assert np.array_equal(P1, P1.T)
+    np.testing.assert_array_equal(Phi, kernels.transition_matrix(F, 0.05))

@@ -36,7 +36,7 @@ from collections import deque
 
 import numpy as np
 
-from .eskf import chi2_quantile
+from .eskf import chi2_quantile, small_inverse
 
 
 class ConsistencyMonitor:
@@ -71,10 +71,10 @@ class ConsistencyMonitor:
     def factor(self, nu: np.ndarray, HPHt: np.ndarray, R: np.ndarray) -> float:
         """Fold one innovation nu (predicted minus observed) with its predicted H P H' and R into the window and
         return the factor lambda >= 1 to scale P by before this update (1: leave P alone)."""
-        S = HPHt + R
-        self._nu.append(np.array(nu, dtype=float))
-        self._nis.append(float(nu @ np.linalg.solve(S, nu)))
-        self._C_minus_R.append(np.outer(nu, nu) - R)
+        nu = np.array(nu, dtype=float)
+        self._nu.append(nu)
+        self._nis.append(float(nu @ (small_inverse(HPHt + R) @ nu)))
+        self._C_minus_R.append(nu[:, None] * nu - R)
         self.counts["updates"] += 1
         self.last_factor = 1.0
         if len(self._nis) < self.window or sum(self._nis) <= self.threshold:

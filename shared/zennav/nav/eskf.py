@@ -133,32 +133,56 @@ class ErrorStateKF:
     def __init__(self, P0: np.ndarray):
         self.P = np.array(P0, dtype=float)
 
-    def propagate(self, Phi: np.ndarray, Qd: np.ndarray) -> None:
-        self.P = kernels.propagate(self.P, Phi, Qd)
+    def propagate(self, Phi: np.ndarray, q_psd: np.ndarray, dt: float, kn=kernels) -> None:
+        """P <- Phi P Phi' + Qd with the trapezoidal Qd of the process-noise PSD diagonal q_psd over dt [s]
+        (zennav.nav.kernels.propagate); kn: the arithmetic, zennav.nav.kernels or its compiled() namespace."""
+        self.P = kn.propagate(self.P, Phi, q_psd, dt)
 
     def update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, gate: float | None,
-               gain_states: slice | None = None) -> UpdateResult:
+               gain_states: slice | None = None, PHt: np.ndarray | None = None, kn=kernels) -> UpdateResult:
         """Joseph-form update with measurement z = H x + v, v ~ N(0, R).
 
         gate: chi-square threshold on d2 (None: always fuse). Rejected updates leave P unchanged.
-        H has one column per state of P.
+        H has one column per state of P; PHt: P H' when the caller has it already.
         gain_states: correct only these states (Schmidt "consider" update: the other rows of the gain are zero;
-        the Joseph form keeps P right for any gain)."""
-        PHt = self.P @ H.T
+        the Joseph form keeps P right for any gain). kn: the arithmetic of the gain and the Joseph form,
+        zennav.nav.kernels or its compiled() namespace (the same floats)."""
+        P = self.P
+        if PHt is None:
+            PHt = P @ H.T
         S = H @ PHt + R
         S = 0.5 * (S + S.T)
-        S_inv_z = np.linalg.solve(S, z)
-        d2 = float(z @ S_inv_z)
+        S_inv = small_inverse(S)
+        d2 = float(z @ (S_inv @ z))
         ratio = d2 / gate if gate else 0.0
-        n = self.P.shape[0]
+        n = P.shape[0]
         if gate is not None and not d2 <= gate:
             return UpdateResult(z, S, d2, ratio, False, np.zeros(n))
-        K = np.linalg.solve(S, PHt.T).T
+        keep = np.ones(n, dtype=bool)
         if gain_states is not None:
-            keep = np.zeros(n, dtype=bool)
+            keep[:] = False
             keep[gain_states] = True
-            K[~keep] = 0.0
-        I_KH = np.eye(n) - K @ H
-        P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
-        self.P = 0.5 * (P + P.T)
-        return UpdateResult(z, S, d2, ratio, True, K @ z)
+        c = np.ascontiguousarray
+        self.P, dx = kn.joseph_update(c(P), c(H), c(R), c(PHt), S_inv, c(z, dtype=float), keep)
+        return UpdateResult(z, S, d2, ratio, True, dx)
+
+
+def small_inverse(S: np.ndarray) -> np.ndarray:
+    """Inverse of a small square matrix S (an innovation covariance H P H' + R: positive definite, conditioned by
+    R): by cofactors (Cramer's rule) up to 3 x 3, a few float operations where a numpy.linalg call costs tens of
+    microseconds (issue 17); LAPACK above."""
+    m = S.shape[0]
+    if m == 1:
+        return 1.0 / S
+    if m == 2:
+        (a, b), (c, d) = S.tolist()
+        det = a * d - b * c
+        return np.array([[d / det, -b / det], [-c / det, a / det]])
+    if m == 3:
+        (a, b, c), (d, e, f), (g, h, i) = S.tolist()
+        c00, c01, c02 = e * i - f * h, f * g - d * i, d * h - e * g
+        det = a * c00 + b * c01 + c * c02
+        return np.array([[c00 / det, (c * h - b * i) / det, (b * f - c * e) / det],
+                         [c01 / det, (a * i - c * g) / det, (c * d - a * f) / det],
+                         [c02 / det, (b * g - a * h) / det, (a * e - b * d) / det]])
+    return np.linalg.inv(S)

@@ -1,10 +1,12 @@
 """The navigation engine's arithmetic, in one implementation that runs as plain Python or compiled by numba
 (``compiled()``): the strapdown step (``mechanize``), the error model F (``error_model``, ``scale_factor_coupling``),
-its discretisation (``discretize``), the covariance propagation (``propagate_covariance``, with the augmented
-states of Navigator.add_states and the 21-state scale factors) and the per-sample loop between two events
-(``run_block``). Scalars are Python floats and tuples, matrices numpy arrays: as Python the step-wise engine (the
-services) runs them without numba; compiled, ``run_block`` runs a whole stretch of IMU samples without a Python
-call per sample (zennav replay).
+its discretisation (``discretize``), the covariance propagation (``propagate``, with the augmented
+states of Navigator.add_states and the 21-state scale factors; the trapezoidal process noise folded in), the
+per-sample loop between two events (``run_block``) and a measurement update's gain and Joseph form
+(``joseph_update``). Scalars are Python floats and tuples, matrices numpy arrays: as Python the step-wise engine
+(the services) runs them without numba; compiled, ``run_block`` runs a whole stretch of IMU samples without a Python
+call per sample (zennav replay), and the step-wise samples and GNSS epochs of that engine call the compiled kernels
+(Navigator.kernels). Matrix products are numpy's ``@`` both ways (BLAS): compiled and Python give the same floats.
 
 The formulas and their literature are in zennav.nav.strapdown (mechanization) and zennav.nav.eskf (error model,
 discretisation); the Navigator's ``on_imu`` (Python) and ``run_imu`` (run_block) give the same floats sample for
@@ -174,30 +176,60 @@ def scale_factor_coupling(F, C, fx, fy, fz, ox, oy, oz, sg0, sa0) -> None:
         F[6 + i, sg0 + 2] = C[i, 2] * oz
 
 
-def discretize(F, q_psd, dt):
-    """Transition Phi and process noise Qd over dt [s] (second-order Phi, trapezoidal Qd; zennav.nav.eskf)."""
+def transition_matrix(F, dt):
+    """Second-order transition Phi = I + F dt + (F dt)^2 / 2 over dt [s] (zennav.nav.eskf)."""
     n = F.shape[0]
     Fdt = F * dt
     Phi = Fdt @ Fdt
     Phi *= 0.5
     Phi += Fdt
     Phi.ravel()[:: n + 1] += 1.0
+    return Phi
+
+
+def discretize(F, q_psd, dt):
+    """Transition Phi and process noise Qd over dt [s] (second-order Phi, trapezoidal Qd; zennav.nav.eskf)."""
+    n = F.shape[0]
+    Phi = transition_matrix(F, dt)
     Qd = (Phi * q_psd) @ Phi.T  # Phi diag(q) Phi'
     Qd.ravel()[:: n + 1] += q_psd
     Qd *= 0.5 * dt
     return Phi, Qd
 
 
-def propagate(P, Phi, Qd):
-    """Phi P Phi' + Qd, symmetrised."""
-    P1 = Phi @ P @ Phi.T + Qd
+def propagate(P, Phi, q_psd, dt):
+    """Phi P Phi' + Qd, symmetrised, with discretize's trapezoidal Qd = (Phi Q Phi' + Q) dt / 2 of the PSD diagonal
+    q_psd over dt [s] folded in: Phi (P + Q dt / 2) Phi' + Q dt / 2, one matrix triple product instead of two."""
+    n = P.shape[0]
+    half_q = q_psd * (0.5 * dt)
+    M = P.copy()
+    M.ravel()[:: n + 1] += half_q
+    P1 = Phi @ M @ Phi.T
+    P1.ravel()[:: n + 1] += half_q
     return 0.5 * (P1 + P1.T)
 
 
-def transition(lat, h, vn, ve, vd, q0, q1, q2, q3, fx, fy, fz, ox, oy, oz, q_psd, aug_decay, sg0, sa0, gb, ab, dt):
-    """Phi and Qd of the whole error state (15 INS states, then the augmented ones with their F diagonal aug_decay
-    [1/s]; scale-factor columns from sg0 and sa0 when sg0 >= 0) over dt [s], at the navigation state (lat, h, v_n,
-    q_nb) with the mean specific force f_b and rate omega_ib_b of the interval [SI, body]."""
+def joseph_update(P, H, R, PHt, S_inv, z, keep):
+    """The gain K = P H' S^-1 (its rows zero where keep (n,) is False: a Schmidt update) and the Joseph-form
+    covariance (I - K H) P (I - K H)' + K R K', symmetrised, of the update with z = H x + v, v ~ N(0, R)
+    (zennav.nav.eskf.ErrorStateKF.update; PHt = P H', S_inv the inverse innovation covariance). Returns the new P
+    (n, n) and the correction dx = K z (n,)."""
+    n = P.shape[0]
+    K = PHt @ S_inv
+    for i in range(n):
+        if not keep[i]:
+            K[i, :] = 0.0
+    I_KH = -(K @ H)
+    for i in range(n):
+        I_KH[i, i] += 1.0
+    P1 = I_KH @ P @ I_KH.T + K @ R @ K.T
+    return 0.5 * (P1 + P1.T), K @ z
+
+
+def transition(lat, h, vn, ve, vd, q0, q1, q2, q3, fx, fy, fz, ox, oy, oz, aug_decay, sg0, sa0, gb, ab, dt):
+    """Phi of the whole error state (15 INS states, then the augmented ones with their F diagonal aug_decay [1/s];
+    scale-factor columns from sg0 and sa0 when sg0 >= 0) over dt [s], at the navigation state (lat, h, v_n, q_nb)
+    with the mean specific force f_b and rate omega_ib_b of the interval [SI, body]."""
     n = N_INS + aug_decay.shape[0]
     F = np.zeros((n, n))
     C = quat_dcm(q0, q1, q2, q3)
@@ -205,7 +237,7 @@ def transition(lat, h, vn, ve, vd, q0, q1, q2, q3, fx, fy, fz, ox, oy, oz, q_psd
     F.ravel()[N_INS * (n + 1):: n + 1] = aug_decay
     if sg0 >= 0:
         scale_factor_coupling(F, C, fx, fy, fz, ox, oy, oz, sg0, sa0)
-    return discretize(F, q_psd, dt)
+    return transition_matrix(F, dt)
 
 
 def run_block(t_ns, dtheta, dvel, k0, k1, t_prev_ns, stop_ns, outage_from_ns, timeout_s, nav, bias, aug_x, sg0, sa0,
@@ -261,9 +293,9 @@ def run_block(t_ns, dtheta, dvel, k0, k1, t_prev_ns, stop_ns, outage_from_ns, ti
         ct1 += ay
         ct2 += az
         if cdt >= cov_interval_s and cdt > 0.0:
-            Phi, Qd = transition(lat, h, vn, ve, vd, q0, q1, q2, q3, cv0 / cdt, cv1 / cdt, cv2 / cdt, ct0 / cdt,
-                                 ct1 / cdt, ct2 / cdt, q_psd, aug_decay, sg0, sa0, gb, ab, cdt)
-            P[:, :] = propagate(P, Phi, Qd)
+            Phi = transition(lat, h, vn, ve, vd, q0, q1, q2, q3, cv0 / cdt, cv1 / cdt, cv2 / cdt, ct0 / cdt, ct1 / cdt,
+                             ct2 / cdt, aug_decay, sg0, sa0, gb, ab, cdt)
+            P[:, :] = propagate(P, Phi, q_psd, cdt)
             cdt, cv0, cv1, cv2, ct0, ct1, ct2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
             for m in range(9):
                 sd[m] = math.sqrt(P[m, m])
@@ -280,8 +312,8 @@ def run_block(t_ns, dtheta, dvel, k0, k1, t_prev_ns, stop_ns, outage_from_ns, ti
 
 
 # the functions compiled() compiles, callees first (each calls the compiled versions of the others)
-_KERNELS = (gravity_sw, rotvec_quat_xyz, mechanize, quat_dcm, error_model, scale_factor_coupling, discretize,
-            propagate, transition, run_block)
+_KERNELS = (gravity_sw, rotvec_quat_xyz, mechanize, quat_dcm, error_model, scale_factor_coupling,
+            transition_matrix, propagate, transition, run_block, joseph_update)
 _compiled: types.SimpleNamespace | None = None
 
 
@@ -298,12 +330,18 @@ def compiled() -> types.SimpleNamespace:
         for f in _KERNELS:
             g = dict(f.__globals__)
             ns[f.__name__] = numba.njit(cache=True)(types.FunctionType(f.__code__, g, f.__name__, f.__defaults__))
-        for f in _KERNELS:  # every copy calls the compiled functions
-            ns[f.__name__].py_func.__globals__.update(ns)
+        for f in _KERNELS:  # every copy calls the compiled functions (NUMBA_DISABLE_JIT=1: njit returns the copy)
+            getattr(ns[f.__name__], "py_func", ns[f.__name__]).__globals__.update(ns)
         _compiled = types.SimpleNamespace(**ns)
         # load (or compile) run_block now, for the argument types Navigator.run_imu passes: a call on no samples
         z2, zi = np.zeros((1, 3)), np.zeros(1, dtype=np.int64)
         _compiled.run_block(zi, z2, z2, 0, 0, 0, 0, 0, 1.0, np.zeros(10), np.zeros(6), np.zeros(0), -1, -1,
                             np.zeros(6), np.zeros(7), np.eye(N_INS), np.zeros(N_INS), np.zeros(0), -1.0, -1.0, 0.0,
                             np.zeros((1, 10)), np.zeros((1, 9)))
+        # and the kernels the step-wise engine calls with the compiled namespace (Navigator.kernels): a GNSS epoch
+        _compiled.mechanize(*([0.0] * 6), 1.0, *([0.0] * 15), 1.0)
+        Phi = _compiled.transition(*([0.0] * 5), 1.0, *([0.0] * 9), np.zeros(0), -1, -1, -1.0, -1.0, 1.0)
+        _compiled.propagate(np.eye(N_INS), Phi, np.zeros(N_INS), 1.0)
+        _compiled.joseph_update(np.eye(N_INS), np.zeros((3, N_INS)), np.eye(3), np.zeros((N_INS, 3)), np.eye(3),
+                                np.zeros(3), np.ones(N_INS, dtype=np.bool_))
     return _compiled

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import math
+import types
 from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -37,8 +38,6 @@ from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, GnssPosition, 
 from .alignment import Alignment, coarse_initial
 from .eskf import (
     ATT,
-    BA,
-    BG,
     N_STATES,
     POS,
     VEL,
@@ -48,7 +47,7 @@ from .eskf import (
     process_noise_psd,
 )
 from .learning import LearningTap, LearnQuery, LearnSample
-from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_quat_xyz, rotvec_to_quat
+from .rotation import euler_to_quat, quat_multiply, quat_to_euler, rotvec_quat_xyz
 from .strapdown import NavState, mechanize
 from .types import NS, GnssFix, GnssState, InitialState, NavConfig
 
@@ -87,17 +86,29 @@ def correct_nav(lat, lon, h, v_n, q_nb, dx):
     minus truth): one state (lat, lon [rad], h [m] floats, v_n (3,) [m/s, NED], q_nb (4,), dx (n,)) or N states
     (lat, lon, h (N,), v_n (3, N), q_nb (4, N), dx (n, N)). Returns the corrected (lat, lon, h, v_n, q_nb); the
     engine's feedback and the smoother apply their corrections with it."""
-    xp = math if isinstance(lat, float) else np
+    if isinstance(lat, float):
+        out = correct_state(lat, lon, h, *(float(x) for x in (*v_n, *q_nb)), np.asarray(dx).tolist())
+        return out[0], out[1], out[2], np.array(out[3:6]), np.array(out[6:])
     r_m, r_n = earth.radii(lat)
     lat = lat - dx[0] / (r_m + h)
-    lon = lon - dx[1] / ((r_n + h) * xp.cos(lat))  # at the corrected latitude
-    h = h + dx[2]
-    v_n = v_n - dx[VEL]
-    if xp is math:
-        q = quat_multiply(rotvec_to_quat(dx[ATT]), q_nb)
-        return lat, lon, h, v_n, q / np.linalg.norm(q)
+    lon = lon - dx[1] / ((r_n + h) * np.cos(lat))  # at the corrected latitude
     q = quat_multiply(np.array([rotvec_quat_xyz(*rv) for rv in dx[ATT].T.tolist()]).T, q_nb)
-    return lat, lon, h, v_n, q / np.sqrt(np.sum(q * q, axis=0))
+    return lat, lon, h + dx[2], v_n - dx[VEL], q / np.sqrt(np.sum(q * q, axis=0))
+
+
+def correct_state(lat, lon, h, vn, ve, vd, q0, q1, q2, q3, dx) -> tuple:
+    """correct_nav of one state on Python floats (the engine's feedback): lat, lon [rad], h [m], v_n [m/s, NED],
+    q_nb and the error dx (a sequence of floats, zennav.nav.eskf order). Returns the 10 corrected values."""
+    r_m, r_n = earth.radii(lat)
+    lat1 = lat - dx[0] / (r_m + h)
+    lon1 = lon - dx[1] / ((r_n + h) * math.cos(lat1))  # at the corrected latitude
+    p0, p1, p2, p3 = rotvec_quat_xyz(dx[6], dx[7], dx[8])
+    t0 = p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3
+    t1 = p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2
+    t2 = p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1
+    t3 = p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0
+    norm = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2 + t3 * t3)
+    return (lat1, lon1, h + dx[2], vn - dx[3], ve - dx[4], vd - dx[5], t0 / norm, t1 / norm, t2 / norm, t3 / norm)
 
 
 class Navigator:
@@ -113,6 +124,9 @@ class Navigator:
         self.gyro_bias = [float(x) for x in initial.gyro_bias]
         self.accel_bias = [float(x) for x in initial.accel_bias]
         self.kf = ErrorStateKF(initial_covariance(initial, config))
+        # the per-sample arithmetic: zennav.nav.kernels, or its compiled() namespace once run_imu ran compiled (the
+        # same floats; the step-wise samples of a compiled replay, its GNSS epochs, then call the compiled kernels)
+        self.kernels: types.ModuleType | types.SimpleNamespace = kernels
         self.counters: Counter[str] = Counter()
         self.lever_b = np.asarray(config.lever_arm_b, dtype=float)
         self._q_psd = process_noise_psd(config.imu_noise)
@@ -158,8 +172,8 @@ class Navigator:
     def on_imu(self, t_ns: int, dtheta_b, dvel_b) -> bool:
         """Process the increments [rad, m/s, body] of the IMU interval ending at t_ns. Returns False when the
         sample is rejected (counted under its reason); the solution is then `solution()`."""
-        dtheta = [float(x) for x in dtheta_b]
-        dvel = [float(x) for x in dvel_b]
+        dtheta, dvel = ([float(x) for x in d] if not isinstance(d, np.ndarray) else d.astype(float).tolist()
+                        for d in (dtheta_b, dvel_b))
         if not all(map(math.isfinite, dtheta + dvel)) or len(dtheta) != 3 or len(dvel) != 3:
             return self._reject_imu("imu_nonfinite", t_ns)
         if t_ns <= self.t_ns:
@@ -206,13 +220,17 @@ class Navigator:
                 if due is None:
                     return k0
                 stop_ns = min(stop_ns, due)
+        if t_ns[k0] >= stop_ns:  # the first sample goes step by step (run_block would stop at it)
+            return k0
         s = self.state
         nav = np.array([s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3])
         prev = np.array([*self._prev_dtheta, *self._prev_dvel])
         cov = np.array([self._cov_dt, *self._cov_dvel, *self._cov_dtheta])
         P = np.ascontiguousarray(self.kf.P)
         sg0, sa0 = (-1, -1) if self._scale is None else (self._scale[0].start, self._scale[1].start)
-        run_block = kernels.compiled().run_block if jit else kernels.run_block
+        if jit and self.kernels is kernels:
+            self.kernels = kernels.compiled()
+        run_block = (self.kernels if jit else kernels).run_block
         k = run_block(t_ns, dtheta_b, dvel_b, int(k0), int(k1), int(self.t_ns), int(stop_ns),
                       int(gp.valid_t_ns) if gp.gnss_state is GnssState.VALID else -1,
                       float(self.config.outage_timeout_s), nav, np.array(self.gyro_bias + self.accel_bias),
@@ -428,24 +446,27 @@ class Navigator:
         if H.shape[1] < self.n_states:  # a model of the INS states only: the augmented states do not enter
             H = np.hstack([H, np.zeros((H.shape[0], self.n_states - H.shape[1]))])
         gate = self.gate_threshold(len(z)) if m.gated else None
+        PHt = self.kf.P @ H.T
+        HPHt = H @ PHt  # the predicted part of the innovation covariance
         est = source.adaptive if m.gated else None
         if est is not None:
-            R = est.update(z, H @ self.kf.P @ H.T, R)
+            R = est.update(z, HPHt, R)
         vb = source.vb if m.gated else None
         if vb is not None:  # variational-Bayes R (zennav.nav.vbkf), then the update with it
-            R = vb.update(z, H @ self.kf.P @ H.T, R, m.channels, gate)
+            R = vb.update(z, HPHt, R, m.channels, gate)
         source.R_used = R
         reason, faults = "", list(m.faults)
         # consistency monitoring once aligned or started by a coarse alignment (Alignment.monitored)
         monitor = source.consistency if m.gated and self.alignment.monitored() else None
-        if monitor is not None and (factor := monitor.factor(z, H @ self.kf.P @ H.T, R)) > 1.0:
+        if monitor is not None and (factor := monitor.factor(z, HPHt, R)) > 1.0:
             self.kf.P *= factor  # overconfident on small, steady innovations: fading memory (nav.consistency)
+            PHt = self.kf.P @ H.T
             self.counters[f"{name}_inflated"] += 1
             faults.append("inflated")
             if self.recorder is not None:
                 self.recorder.on_inflate(self.t_ns, self.kf.P)
         P_before = self.kf.P
-        res = self.kf.update(z, H, R, gate, m.gain_states)
+        res = self.kf.update(z, H, R, gate, m.gain_states, PHt, self.kernels)
         if res.fused:
             self.feedback(res.dx)
             if self.recorder is not None:
@@ -458,7 +479,7 @@ class Navigator:
             reason = f"{name}_gate"
             faults.append("gate")
             self.count_rejection(reason, m.t_ns, f"test ratio {res.test_ratio:.1f}, innovation {np.round(z, 2)}")
-        source.report(self, m.t_ns, m.observation.tolist(), res.innovation.tolist(), np.diag(res.S).tolist(),
+        source.report(self, m.t_ns, m.observation.tolist(), res.innovation.tolist(), res.S.diagonal().tolist(),
                       res.test_ratio, res.fused, reason, faults)
         return res.fused
 
@@ -478,10 +499,10 @@ class Navigator:
         s = self.state
         (fx, fy, fz), (ox, oy, oz) = ([x / dt for x in v] for v in (self._cov_dvel, self._cov_dtheta))
         sg0, sa0 = (-1, -1) if self._scale is None else (self._scale[0].start, self._scale[1].start)
-        Phi, Qd = kernels.transition(s.lat, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3, fx, fy, fz, ox, oy, oz,
-                                     self._q_psd, self._aug_decay, sg0, sa0, *self._bias_decay, dt)
+        Phi = self.kernels.transition(s.lat, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3, fx, fy, fz, ox, oy, oz,
+                                      self._aug_decay, sg0, sa0, *self._bias_decay, dt)
         P_before = self.kf.P
-        self.kf.propagate(Phi, Qd)
+        self.kf.propagate(Phi, self._q_psd, dt, self.kernels)
         if self.recorder is not None:
             self.recorder.on_propagate(self.t_ns, dt, Phi, P_before, self.kf.P, self._additive_values())
         self._cov_dt = 0.0
@@ -492,11 +513,11 @@ class Navigator:
     def feedback(self, dx: np.ndarray) -> None:
         """Apply the estimated error to the navigation state (closed loop) and reset it to zero."""
         s = self.state
-        s.lat, s.lon, s.h, v_n, q = correct_nav(s.lat, s.lon, s.h, s.v_n, s.q_nb, dx)
-        s.vn, s.ve, s.vd = v_n
-        s.q0, s.q1, s.q2, s.q3 = (float(x) for x in q)
-        self.gyro_bias = [b - d for b, d in zip(self.gyro_bias, dx[BG].tolist())]
-        self.accel_bias = [b - d for b, d in zip(self.accel_bias, dx[BA].tolist())]
+        d = dx.tolist()
+        s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3 = correct_state(
+            s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3, d)
+        self.gyro_bias = [b - e for b, e in zip(self.gyro_bias, d[9:12])]
+        self.accel_bias = [b - e for b, e in zip(self.accel_bias, d[12:15])]
         if len(dx) > N_STATES:
             self._aug_x -= dx[N_STATES:]
         self._update_stds()
@@ -541,7 +562,7 @@ class Navigator:
         if self.alignment.coarse:
             self._advance_coarse(t_ns, dth, dv, dt)
             return
-        mechanize(self.state, dth, dv, self._prev_dtheta, self._prev_dvel, dt)
+        mechanize(self.state, dth, dv, self._prev_dtheta, self._prev_dvel, dt, self.kernels)
         if self.tap is not None:
             self.tap.on_step(dtheta, dvel, dth, dv, dt)
         self._prev_dtheta, self._prev_dvel = dth, dv
@@ -581,7 +602,7 @@ class Navigator:
 
     def _update_stds(self) -> None:
         """Refresh the 1-sigma of position [m], velocity [m/s] and attitude error [rad] from P."""
-        sd = np.sqrt(np.diag(self.kf.P))
+        sd = np.sqrt(self.kf.P.diagonal()[:9])
         self.std_pos_ned, self.std_v_n, self.std_att = sd[POS], sd[VEL], sd[ATT]
 
     def _add_scale_factor_states(self, initial: InitialState) -> None:

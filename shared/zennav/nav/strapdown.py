@@ -68,13 +68,14 @@ class NavState:
         return quat_to_euler(self.q_nb)
 
 
-def mechanize(s: NavState, dtheta, dvel, dtheta_prev, dvel_prev, dt: float) -> None:
+def mechanize(s: NavState, dtheta, dvel, dtheta_prev, dvel_prev, dt: float, kn=kernels) -> None:
     """Advance s in place by one IMU interval of length dt [s] (zennav.nav.kernels.mechanize).
 
     dtheta, dvel: bias-corrected angle [rad] and velocity [m/s] increments of this interval, body frame;
-    dtheta_prev, dvel_prev: those of the previous interval (zeros at the first step), for coning/sculling.
+    dtheta_prev, dvel_prev: those of the previous interval (zeros at the first step), for coning/sculling;
+    kn: the arithmetic, zennav.nav.kernels or its compiled() namespace (the same floats).
     """
     a, u, p, w = dtheta, dvel, dtheta_prev, dvel_prev
-    s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3 = kernels.mechanize(
+    s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3 = kn.mechanize(
         s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q0, s.q1, s.q2, s.q3, a[0], a[1], a[2], u[0], u[1], u[2], p[0], p[1],
         p[2], w[0], w[1], w[2], dt)

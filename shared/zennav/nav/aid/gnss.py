@@ -80,6 +80,14 @@ def consistency_monitor(config: NavConfig, max_innovation: float, dim: int = 3) 
                               config.consistency_max_factor)
 
 
+def floored_noise(std, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """The reported 1-sigma std (3,) floored at floor, and the diagonal R of its squares [unit, unit^2]."""
+    sx, sy, sz = (max(float(x), floor) for x in std)
+    R = np.zeros((3, 3))
+    R[0, 0], R[1, 1], R[2, 2] = sx * sx, sy * sy, sz * sz
+    return np.array([sx, sy, sz]), R
+
+
 class GnssPosition(AidSource):
     """GNSS antenna position [rad, rad, m] with its reported NED 1-sigma floored at pos_std_floor_m.
 
@@ -123,7 +131,7 @@ class GnssPosition(AidSource):
             if fix.std_v_n is None:
                 return "gnss_malformed"
             arrays += [fix.v_n, fix.std_v_n]
-        if any(np.shape(a) != (3,) for a in arrays) or not all(np.all(np.isfinite(a)) for a in arrays):
+        if any(np.shape(a) != (3,) for a in arrays) or not np.isfinite(np.concatenate(arrays)).all():
             return "gnss_malformed"
         if fix.t_ns == self.last_fix_t_ns:
             return "gnss_duplicate"
@@ -133,7 +141,8 @@ class GnssPosition(AidSource):
             return "gnss_fix_quality"
         if 0 <= fix.num_sats < cfg.min_sats:
             return "gnss_few_satellites"
-        if np.any(np.asarray(fix.std_ned) <= 0.0) or np.max(fix.std_ned) > cfg.max_std_m:
+        std = np.asarray(fix.std_ned, dtype=float).tolist()
+        if min(std) <= 0.0 or max(std) > cfg.max_std_m:
             return "gnss_std"
         if (nav.t_ns - fix.t_ns) / NS > MAX_FIX_AGE_S:
             return "gnss_stale"
@@ -145,8 +154,7 @@ class GnssPosition(AidSource):
         fix_llh = np.asarray(fix.llh, dtype=float)
         v_ant_n = antenna_velocity(nav.state, nav.lever_b, ctx.omega_ib_b)
         z, H = position_model(nav.state, nav.lever_b, fix_llh, v_ant_n, ctx.age_s)
-        std_pos = np.maximum(fix.std_ned, self.config.pos_std_floor_m)
-        R = np.diag(np.square(std_pos))
+        std_pos, R = floored_noise(fix.std_ned, self.config.pos_std_floor_m)
         checking = not ctx.coarse and nav.alignment.checking
         verdict = nav.alignment.check_initial(nav, ctx, z, H, R) if checking else ""
         if ctx.coarse or verdict == "rejected":
@@ -313,5 +321,5 @@ class GnssVelocity(AidSource):
         fix_v_n = np.asarray(fix.v_n, dtype=float)
         assert fix.std_v_n is not None  # the input check rejects a velocity without its std (gnss_malformed)
         z, H = velocity_model(nav.state, nav.lever_b, ctx.omega_ib_b, fix_v_n)
-        R = np.diag(np.square(np.maximum(fix.std_v_n, self.config.vel_std_floor_mps)))
+        R = floored_noise(fix.std_v_n, self.config.vel_std_floor_mps)[1]
         return nav.update(self, Measurement(fix.t_ns, fix_v_n, z, H, R))
