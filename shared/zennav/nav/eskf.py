@@ -139,14 +139,13 @@ class ErrorStateKF:
         self.P = kn.propagate(self.P, Phi, q_psd, dt)
 
     def update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, gate: float | None,
-               gain_states: slice | None = None, PHt: np.ndarray | None = None, kn=kernels) -> UpdateResult:
+               gain_states: slice | None = None, PHt: np.ndarray | None = None) -> UpdateResult:
         """Joseph-form update with measurement z = H x + v, v ~ N(0, R).
 
         gate: chi-square threshold on d2 (None: always fuse). Rejected updates leave P unchanged.
         H has one column per state of P; PHt: P H' when the caller has it already.
         gain_states: correct only these states (Schmidt "consider" update: the other rows of the gain are zero;
-        the Joseph form keeps P right for any gain). kn: the arithmetic of the gain and the Joseph form,
-        zennav.nav.kernels or its compiled() namespace (the same floats)."""
+        the Joseph form keeps P right for any gain)."""
         P = self.P
         if PHt is None:
             PHt = P @ H.T
@@ -158,13 +157,17 @@ class ErrorStateKF:
         n = P.shape[0]
         if gate is not None and not d2 <= gate:
             return UpdateResult(z, S, d2, ratio, False, np.zeros(n))
-        keep = np.ones(n, dtype=bool)
+        K = PHt @ S_inv
         if gain_states is not None:
-            keep[:] = False
+            keep = np.zeros(n, dtype=bool)
             keep[gain_states] = True
-        c = np.ascontiguousarray
-        self.P, dx = kn.joseph_update(c(P), c(H), c(R), c(PHt), S_inv, c(z, dtype=float), keep)
-        return UpdateResult(z, S, d2, ratio, True, dx)
+            K[~keep] = 0.0
+        I_KH = K @ H
+        np.negative(I_KH, out=I_KH)
+        I_KH.ravel()[:: n + 1] += 1.0
+        P1 = I_KH @ P @ I_KH.T + K @ R @ K.T
+        self.P = 0.5 * (P1 + P1.T)
+        return UpdateResult(z, S, d2, ratio, True, K @ z)
 
 
 def small_inverse(S: np.ndarray) -> np.ndarray:

@@ -209,23 +209,6 @@ def propagate(P, Phi, q_psd, dt):
     return 0.5 * (P1 + P1.T)
 
 
-def joseph_update(P, H, R, PHt, S_inv, z, keep):
-    """The gain K = P H' S^-1 (its rows zero where keep (n,) is False: a Schmidt update) and the Joseph-form
-    covariance (I - K H) P (I - K H)' + K R K', symmetrised, of the update with z = H x + v, v ~ N(0, R)
-    (zennav.nav.eskf.ErrorStateKF.update; PHt = P H', S_inv the inverse innovation covariance). Returns the new P
-    (n, n) and the correction dx = K z (n,)."""
-    n = P.shape[0]
-    K = PHt @ S_inv
-    for i in range(n):
-        if not keep[i]:
-            K[i, :] = 0.0
-    I_KH = -(K @ H)
-    for i in range(n):
-        I_KH[i, i] += 1.0
-    P1 = I_KH @ P @ I_KH.T + K @ R @ K.T
-    return 0.5 * (P1 + P1.T), K @ z
-
-
 def transition(lat, h, vn, ve, vd, q0, q1, q2, q3, fx, fy, fz, ox, oy, oz, aug_decay, sg0, sa0, gb, ab, dt):
     """Phi of the whole error state (15 INS states, then the augmented ones with their F diagonal aug_decay [1/s];
     scale-factor columns from sg0 and sa0 when sg0 >= 0) over dt [s], at the navigation state (lat, h, v_n, q_nb)
@@ -313,7 +296,7 @@ def run_block(t_ns, dtheta, dvel, k0, k1, t_prev_ns, stop_ns, outage_from_ns, ti
 
 # the functions compiled() compiles, callees first (each calls the compiled versions of the others)
 _KERNELS = (gravity_sw, rotvec_quat_xyz, mechanize, quat_dcm, error_model, scale_factor_coupling,
-            transition_matrix, propagate, transition, run_block, joseph_update)
+            transition_matrix, propagate, transition, run_block)
 _compiled: types.SimpleNamespace | None = None
 
 
@@ -342,6 +325,4 @@ def compiled() -> types.SimpleNamespace:
         _compiled.mechanize(*([0.0] * 6), 1.0, *([0.0] * 15), 1.0)
         Phi = _compiled.transition(*([0.0] * 5), 1.0, *([0.0] * 9), np.zeros(0), -1, -1, -1.0, -1.0, 1.0)
         _compiled.propagate(np.eye(N_INS), Phi, np.zeros(N_INS), 1.0)
-        _compiled.joseph_update(np.eye(N_INS), np.zeros((3, N_INS)), np.eye(3), np.zeros((N_INS, 3)), np.eye(3),
-                                np.zeros(3), np.ones(N_INS, dtype=np.bool_))
     return _compiled

@@ -466,7 +466,7 @@ class Navigator:
             if self.recorder is not None:
                 self.recorder.on_inflate(self.t_ns, self.kf.P)
         P_before = self.kf.P
-        res = self.kf.update(z, H, R, gate, m.gain_states, PHt, self.kernels)
+        res = self.kf.update(z, H, R, gate, m.gain_states, PHt)
         if res.fused:
             self.feedback(res.dx)
             if self.recorder is not None:
