@@ -2,11 +2,11 @@
 (``compiled()``): the strapdown step (``mechanize``), the error model F (``error_model``, ``scale_factor_coupling``),
 its discretisation (``discretize``), the covariance propagation (``propagate``, with the augmented
 states of Navigator.add_states and the 21-state scale factors; the trapezoidal process noise folded in), the
-per-sample loop between two events (``run_block``) and a measurement update's gain and Joseph form
-(``joseph_update``). Scalars are Python floats and tuples, matrices numpy arrays: as Python the step-wise engine
-(the services) runs them without numba; compiled, ``run_block`` runs a whole stretch of IMU samples without a Python
-call per sample (zennav replay), and the step-wise samples and GNSS epochs of that engine call the compiled kernels
-(Navigator.kernels). Matrix products are numpy's ``@`` both ways (BLAS): compiled and Python give the same floats.
+per-sample loop between two events (``run_block``). Scalars are Python floats and tuples, matrices numpy arrays:
+as Python the step-wise engine (the services) runs them without numba; compiled, ``run_block`` runs a whole stretch
+of IMU samples without a Python call per sample (zennav replay), and the step-wise samples and GNSS epochs of that
+engine call the compiled kernels (Navigator.kernels). Matrix products are numpy's ``@`` both ways (BLAS): compiled
+and Python give the same floats.
 
 The formulas and their literature are in zennav.nav.strapdown (mechanization) and zennav.nav.eskf (error model,
 discretisation); the Navigator's ``on_imu`` (Python) and ``run_imu`` (run_block) give the same floats sample for
