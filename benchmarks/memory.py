@@ -12,8 +12,8 @@
 2. ``zennav replay sim:car -o duration_s=1800`` (30 min at 200 Hz, --replay-duration): max RSS of the command.
 Targets (issue 17): ins <= 200 MB, predictor <= 120 MB, replay of 30 min at 200 Hz <= 1 GB.
 
-    .venv/bin/python benchmarks/memory.py [--duration 600] [--replay-duration 1800] [--compiled [--solution-batch]] [--batch 1]
-        [--json out.json]
+    .venv/bin/python benchmarks/memory.py [--duration 600] [--replay-duration 1800] [--compiled [--solution-batch]]
+        [--batch 1] [--json out.json]
 """
 from __future__ import annotations
 
@@ -156,8 +156,9 @@ def main() -> int:
     args = ap.parse_args()
     res = {"edge_set": edge_set(args.duration, args.compiled, args.batch, args.solution_batch)}
     e = res["edge_set"]
+    compiled = (", ins --compiled" + (" --solution-batch" if args.solution_batch else "")) if args.compiled else ""
     print(f"edge set, {args.duration:g} s of 200 Hz streamed, batch {args.batch} (ins --learning, predictor, trainer, "
-          f"attitude, ingest{', ins --compiled' if args.compiled else ''}{' --solution-batch' if args.solution_batch else ''}):")
+          f"attitude, ingest{compiled}):")
     for name, b in e["max_rss_bytes"].items():
         t = TARGETS_MB.get(name)
         goal = f" (target <= {t} MB: {'met' if b / MB <= t else 'NOT met'})" if t else ""
