@@ -7,12 +7,13 @@
    it exits: exact), of the processes they start (the trainer's fit worker: VmHWM from /proc, read every 0.2 s
    until it exits), and whether torch is mapped into the ins or the predictor (it must never be). --compiled: a
    second ins beside it, learning off, with ``zennav-ins --compiled`` (numba's block loop), on the same stream
-   (``--batch``: IMU samples per message).
+   (``--batch``: IMU samples per message; ``--solution-batch``: its solutions in nav_solution_batch messages, as
+   many as its recovery cache keeps).
 2. ``zennav replay sim:car -o duration_s=1800`` (30 min at 200 Hz, --replay-duration): max RSS of the command.
 Targets (issue 17): ins <= 200 MB, predictor <= 120 MB, replay of 30 min at 200 Hz <= 1 GB.
 
-    .venv/bin/python benchmarks/memory.py [--duration 600] [--replay-duration 1800] [--compiled] [--batch 1]
-        [--json out.json]
+    .venv/bin/python benchmarks/memory.py [--duration 600] [--replay-duration 1800] [--compiled [--solution-batch]]
+        [--batch 1] [--json out.json]
 """
 from __future__ import annotations
 
@@ -87,7 +88,7 @@ class Watch:
                     self.children[k] = max(self.children.get(k, 0), status_kb(c, "VmHWM"))
 
 
-def edge_set(duration: float, compiled: bool = False, batch: int = 1) -> dict:
+def edge_set(duration: float, compiled: bool = False, batch: int = 1, solution_batch: bool = False) -> dict:
     from zennav.bus import Bus
 
     procs = Procs()
@@ -111,7 +112,7 @@ def edge_set(duration: float, compiled: bool = False, batch: int = 1) -> dict:
         wait = ["ins", "predictor", "trainer", "attitude"]
         if compiled:
             procs.start([PY, "-m", "zennav.services.ins", "--compiled", "--nav-prefix", "compiled", "--name",
-                         "ins-compiled", *bus_args], "ins-compiled")
+                         "ins-compiled", *(["--solution-batch"] if solution_batch else []), *bus_args], "ins-compiled")
             wait.append("ins-compiled")
         if not bus.wait_alive(wait, 120):
             tails = " | ".join(procs.log_tail(n, 400) for n in procs.names)
@@ -149,13 +150,15 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds streamed to the edge set")
     ap.add_argument("--replay-duration", type=float, default=1800.0, help="simulated seconds replayed (0: skip)")
     ap.add_argument("--compiled", action="store_true", help="also an ins --compiled (learning off) on the stream")
+    ap.add_argument("--solution-batch", action="store_true", help="the ins --compiled with --solution-batch")
     ap.add_argument("--batch", type=int, default=1, help="IMU samples per ingest message (zennav-ingest --batch)")
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args()
-    res = {"edge_set": edge_set(args.duration, args.compiled, args.batch)}
+    res = {"edge_set": edge_set(args.duration, args.compiled, args.batch, args.solution_batch)}
     e = res["edge_set"]
+    compiled = (", ins --compiled" + (" --solution-batch" if args.solution_batch else "")) if args.compiled else ""
     print(f"edge set, {args.duration:g} s of 200 Hz streamed, batch {args.batch} (ins --learning, predictor, trainer, "
-          f"attitude, ingest{', ins --compiled' if args.compiled else ''}):")
+          f"attitude, ingest{compiled}):")
     for name, b in e["max_rss_bytes"].items():
         t = TARGETS_MB.get(name)
         goal = f" (target <= {t} MB: {'met' if b / MB <= t else 'NOT met'})" if t else ""

@@ -52,6 +52,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     from .datasets.errors import DataError
     from .datasets.odometer import load_kfgins_odometer
     from .datasets.registry import load_dataset
+    from .gpstime import WEEK_NS
     from .metrics import evaluate, format_table, write_outputs, write_solution
     from .params import ParamError, nav_config
     from .progress import Progress
@@ -131,8 +132,9 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         recorder.write(out, res.reports, spec, options)
         if res.smoothed is not None:
             write_solution(out / "smoothed", res.smoothed)
-        if kf_gins:  # the name KF-GINS gives its solution, for the scripts that read it
+        if kf_gins:  # the names KF-GINS gives its solution and its IMU errors, for the scripts that read them
             shutil.copyfile(out / "nav.txt", out / KF_GINS_NAV)
+            recorder.write_kf_gins(out, int(res.t_ns[0] // WEEK_NS))
     click.echo(json.dumps(metrics, indent=2) if as_json else format_table(metrics))
     if res.smoothed is not None and not as_json:
         click.echo("smoothed (forward-backward):\n" + format_table(metrics["smoothed"]))
@@ -144,7 +146,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         click.echo(_alignment_summary(res.status, int(ds.initial.t_ns)))
     if out is not None and not as_json:
         smoothed = f", {out / 'smoothed' / 'nav.txt'}, {out / 'smoothed' / 'nav.csv'}" if smooth else ""
-        kf_nav = f", {KF_GINS_NAV}" if kf_gins else ""
+        kf_nav = f", {KF_GINS_NAV}, KF_GINS_IMU_ERR.txt, KF_GINS_STD.txt" if kf_gins else ""
         click.echo(f"wrote {out / 'nav.txt'}{kf_nav}, {out / 'nav.csv'}, {out / 'metrics.json'}, aid.csv, biases.csv, "
                    f"run.json{smoothed}")
     if mcap is not None and not as_json:

@@ -7,6 +7,11 @@ while it runs (``RunRecorder.on_epoch``, zennav.replay.run_replay's hook, which 
   from it);
 - ``biases.csv``: once per second of data, the estimated gyro [deg/h] and accelerometer [mg] biases (body FRD)
   with their 1-sigma from the filter covariance;
+- for a KF-GINS configuration, KF-GINS's two other files at the same times (``write_kf_gins``), in its units and its
+  text format (``%-15.9f `` per value): ``KF_GINS_IMU_ERR.txt`` (seconds of week, gyro bias [deg/h], accelerometer
+  bias [mGal], gyro and accelerometer scale factors [ppm]) and ``KF_GINS_STD.txt`` (seconds of week, the 1-sigma of
+  position [m, NED], velocity [m/s, NED], attitude [deg], then of the same IMU errors); the scale factors and their
+  1-sigma are 0 where the filter does not estimate them (15 states);
 - ``--mcap FILE``: every solution (nav_solution), GNSS fix, DVL and depth sample fed (gnss, dvl, depth) and aid
   report (aid_report) as zennav messages with their Foxglove views (zennav.recording.McapRecorder), log time =
   sample time.
@@ -21,21 +26,31 @@ from pathlib import Path
 import numpy as np
 
 from . import messages as M
+from .gpstime import WEEK_NS
 from .nav.eskf import BA, BG
 from .nav.types import NS
 
 DEG_PER_H = math.degrees(1.0) * 3600.0  # [deg/h] per [rad/s]
 MG = 1000.0 / 9.80665  # [mg] per [m/s^2]
+MGAL = 1e5  # [mGal] per [m/s^2]
+PPM = 1e6  # [ppm] per [1]
+KF_GINS_IMU_ERR, KF_GINS_STD = "KF_GINS_IMU_ERR.txt", "KF_GINS_STD.txt"
+# the columns of RunRecorder.states (SI): biases, scale factors, then the 1-sigma of position, velocity, attitude
+# error and of the same IMU errors
+S_BG, S_BA, S_SCALE = slice(0, 3), slice(3, 6), slice(6, 12)
+S_STD_PVA, S_STD_BG, S_STD_BA, S_STD_SCALE = slice(12, 21), slice(21, 24), slice(24, 27), slice(27, 33)
 
 
 class RunRecorder:
-    """Collects biases each second of data and, with an MCAP path, the solutions; write() after the run."""
+    """Collects the IMU errors and 1-sigma each second of data and, with an MCAP path, the solutions; write() (and
+    write_kf_gins) after the run."""
 
     def __init__(self, t0_ns: int, mcap: Path | None = None, vehicle: str = "replay"):
         self.t0_ns = t0_ns
         self.keys = M.Keys(vehicle)
         self.next_bias_ns = t0_ns
-        self.biases: list[list[float]] = []
+        self.times: list[int] = []  # [ns] of the rows of states
+        self.states: list[np.ndarray] = []  # columns S_* above
         self.rec = None
         self._seq = 0
         if mcap is not None:
@@ -52,8 +67,12 @@ class RunRecorder:
         if t >= self.next_bias_ns:
             self.next_bias_ns = t + NS
             std = np.sqrt(np.diag(nav.P))
-            self.biases.append([(t - self.t0_ns) / NS, *(np.asarray(nav.gyro_bias) * DEG_PER_H),
-                                *(std[BG] * DEG_PER_H), *(np.asarray(nav.accel_bias) * MG), *(std[BA] * MG)])
+            scale = [nav.aug_blocks.get(name) for name in ("gyro_scale", "accel_scale")]
+            zero = np.zeros(3)
+            self.times.append(t)
+            self.states.append(np.concatenate(
+                [nav.gyro_bias, nav.accel_bias, *(zero if sl is None else nav.aug_value(sl) for sl in scale),
+                 std[:9], std[BG], std[BA], *(zero if sl is None else std[sl] for sl in scale)]))
         if self.rec is not None:
             self._add(self.keys.nav_solution(), M.nav_solution_msg_of(nav))
 
@@ -94,5 +113,19 @@ class RunRecorder:
                             f"{tr:.4g}" if math.isfinite(tr) else "", *obs, *inn])
         header = ("t_s,bg_x_dph,bg_y_dph,bg_z_dph,bg_std_x_dph,bg_std_y_dph,bg_std_z_dph,ba_x_mg,ba_y_mg,ba_z_mg,"
                   "ba_std_x_mg,ba_std_y_mg,ba_std_z_mg")
-        np.savetxt(out / "biases.csv", np.array(self.biases).reshape(-1, 13), delimiter=",", header=header,
-                   comments="", fmt="%.6g")
+        x = np.array(self.states).reshape(-1, 33)
+        t_s = (np.array(self.times, dtype=np.int64) - self.t0_ns) / NS
+        biases = np.column_stack([t_s, x[:, S_BG] * DEG_PER_H, x[:, S_STD_BG] * DEG_PER_H, x[:, S_BA] * MG,
+                                  x[:, S_STD_BA] * MG])
+        np.savetxt(out / "biases.csv", biases, delimiter=",", header=header, comments="", fmt="%.6g")
+
+    def write_kf_gins(self, out: Path, week: int) -> None:
+        """KF_GINS_IMU_ERR.txt and KF_GINS_STD.txt in out (module docstring), times in seconds of GPS week week."""
+        x = np.array(self.states).reshape(-1, 33)
+        sow = (np.array(self.times, dtype=np.int64) - week * WEEK_NS) / NS
+        err = np.column_stack([sow, x[:, S_BG] * DEG_PER_H, x[:, S_BA] * MGAL, x[:, S_SCALE] * PPM])
+        std = np.column_stack([sow, x[:, S_STD_PVA][:, :6], np.degrees(x[:, S_STD_PVA][:, 6:]),
+                               x[:, S_STD_BG] * DEG_PER_H, x[:, S_STD_BA] * MGAL, x[:, S_STD_SCALE] * PPM])
+        for name, table in ((KF_GINS_IMU_ERR, err), (KF_GINS_STD, std)):
+            # KF-GINS's FileSaver: "%-15.9lf " per value
+            (out / name).write_text("".join("".join(f"{v:<15.9f} " for v in row) + "\n" for row in table.tolist()))

@@ -76,13 +76,13 @@ def test_pipeline_10min_200hz_full_speed_equals_replay_no_loss(cluster):
     assert cluster.bus.rejected == {}
 
 
-@pytest.mark.parametrize("ins_args", [(), ("--compiled",), ("--compiled", "--solution-batch")],
+@pytest.mark.parametrize("ins_args", [(), ("--compiled",), ("--compiled", "--solution-batch", "3")],
                          ids=["step", "compiled", "solution-batch"])
 def test_batched_ingest_gives_the_same_solution(cluster, ins_args):
     """ingest --batch 7 (imu_batch messages, cut before every GNSS fix), to the step-wise ins and to the ins's
-    compiled block loop (whole batches, solutions packed from its rows; or, --solution-batch, a stretch's solutions
-    in one nav_solution_batch, which the subscription hands over one by one): the same 24,000 solutions as the
-    in-process replay, bit for bit, one per IMU sample, nothing lost or duplicated."""
+    compiled block loop (whole batches, solutions packed from its rows; or, --solution-batch 3, a stretch's solutions
+    in nav_solution_batch messages of at most 3, which the subscription hands over one by one): the same 24,000
+    solutions as the in-process replay, bit for bit, one per IMU sample, nothing lost or duplicated."""
     k = cluster.keys
     sols = Collector(cluster.bus, k.nav_solution())
     status = Collector(cluster.bus, k.nav_status(), channel="ring")

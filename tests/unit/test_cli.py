@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from zennav.cli import main
@@ -65,6 +66,38 @@ def test_kf_gins_configuration_without_out_writes_into_its_outputpath(tmp_path, 
     (elsewhere / "results").mkdir()  # KF-GINS's rule first: the current directory's folder when it exists
     assert CliRunner().invoke(main, ["replay", str(yaml_path)]).exit_code == 0
     assert (elsewhere / "results" / "KF_GINS_Navresult.nav").is_file()
+
+
+@pytest.mark.parametrize("scale_states", [False, True], ids=["15-states", "21-states"])
+def test_kf_gins_configuration_writes_its_imu_error_and_std_files(tmp_path, monkeypatch, scale_states):
+    """Beside KF_GINS_Navresult.nav, KF-GINS's KF_GINS_IMU_ERR.txt (13 columns) and KF_GINS_STD.txt (22), once per
+    second of data at solution times, in KF-GINS's units: the gyro biases those of biases.csv, the position 1-sigma
+    that of nav.csv; the scale factors and their 1-sigma 0 with 15 states, estimated with 21 (gsstd/asstd given)."""
+    import yaml
+
+    ds = make_dataset("static", duration_s=10.0, imu_rate_hz=100.0, seed=1)
+    yaml_path = kfgins.write_dataset(ds, tmp_path)
+    config = yaml.safe_load(yaml_path.read_text())
+    if scale_states:
+        config["imunoise"].update(gsstd=[1000.0] * 3, asstd=[1000.0] * 3)
+        config.update(initsgstd=[1000.0] * 3, initsastd=[1000.0] * 3)
+    yaml_path.write_text(yaml.safe_dump({**config, "outputpath": "out"}))
+    out = tmp_path / "out"
+    out.mkdir()
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(main, ["replay", str(yaml_path), "-q"])
+    assert res.exit_code == 0, res.output
+    err, std = np.loadtxt(out / "KF_GINS_IMU_ERR.txt"), np.loadtxt(out / "KF_GINS_STD.txt")
+    nav, csv = np.loadtxt(out / "nav.txt"), np.loadtxt(out / "nav.csv", delimiter=",", skiprows=1)
+    biases = np.loadtxt(out / "biases.csv", delimiter=",", skiprows=1)
+    assert err.shape == (10, 13) and std.shape == (10, 22)
+    rows = np.searchsorted(nav[:, 1], err[:, 0])
+    assert np.allclose(nav[rows, 1], err[:, 0], rtol=0, atol=1e-9) and np.array_equal(err[:, 0], std[:, 0])
+    assert np.allclose(np.diff(err[:, 0]), 1.0, atol=0.011)
+    assert np.allclose(err[:, 1:4], biases[:, 1:4], rtol=1e-5, atol=1e-9)  # deg/h both
+    assert np.allclose(std[:, 1:4], csv[rows, 10:13], rtol=0, atol=1e-4)  # m, NED both
+    assert np.all(std[:, 1:16] > 0)
+    assert np.all(std[:, 16:] > 0) if scale_states else not err[:, 7:].any() and not std[:, 16:].any()
 
 
 def test_an_outage_after_the_end_of_the_run_is_said_not_dropped_silently():

@@ -84,10 +84,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "about 115 MB resident memory, benchmarks/memory.py; compiled once per machine, loaded in "
                         "about a second; with --learning the loop runs from one learning event to the next: a fix, "
                         "a query; the drift target's shadow INSs take every sample step-wise)")
-    p.add_argument("--solution-batch", action="store_true",
+    p.add_argument("--solution-batch", type=int, nargs="?", const=50, default=0, metavar="N",
                    help="with --compiled: the solutions of each stretch of an imu_batch the block loop runs at once "
-                        "in one nav_solution_batch message (the same solutions; zennav.bus subscribers receive them "
-                        "one by one)")
+                        "in nav_solution_batch messages of at most N (default 50) (the same solutions; zennav.bus "
+                        "subscribers receive them one by one); the recovery cache then keeps --recovery-cache / N "
+                        "messages, at most --recovery-cache solutions")
     p.add_argument("--attitude-alignment", action="store_true",
                    help="take roll/pitch from the attitude service during coarse alignment (heading unknown)")
     p.add_argument("--attitude-tilt-std", type=float, default=1.0,
@@ -109,8 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    if args.solution_batch and not args.compiled:
-        raise SystemExit("zennav-ins: --solution-batch needs --compiled (the block loop's rows)")
+    if args.solution_batch < 0 or (args.solution_batch and not args.compiled):
+        raise SystemExit("zennav-ins: --solution-batch N needs N >= 0 and --compiled (the block loop's rows)")
     run = ServiceRunner("ins", args)
     try:
         filter_params = filter_settings("", args.params, args.profile, None)
@@ -124,8 +125,9 @@ def main(argv=None) -> int:
 
         kernels.compiled()
     k, bus = run.keys, run.bus
-    cache = args.recovery_cache
-    pubs = {"solution": bus.cached_publisher(out.nav_solution(), cache) if cache > 0 else
+    cache, rows_max = args.recovery_cache, args.solution_batch
+    depth = -(-cache // rows_max) if rows_max else cache  # [messages] the solution cache: at most `cache` solutions
+    pubs = {"solution": bus.cached_publisher(out.nav_solution(), depth) if cache > 0 else
             bus.publisher(out.nav_solution()), "status": bus.publisher(out.nav_status())}
 
     def publish(kind: str, msg: dict) -> None:
@@ -136,8 +138,10 @@ def main(argv=None) -> int:
     def put_solution(nav, t_ns: int, row, std: list, cseq: int, pub_ns: int) -> None:  # packed straight to bytes
         put_packed(pack, t_ns, row, std, nav.gyro_bias, nav.accel_bias, nav.gnss_state, cseq, pub_ns)
 
-    def put_batch(nav, t_ns, rows, std, cseq, pub_ns) -> None:
-        pubs["solution"].put(M.nav_solution_batch_msg(nav, t_ns, rows, std, cseq, pub_ns))
+    def put_batch(nav, t_ns, rows, std, cseq, pub_ns) -> None:  # rows_max a message at most
+        for a in range(0, len(t_ns), rows_max):
+            b = slice(a, a + rows_max)
+            pubs["solution"].put(M.nav_solution_batch_msg(nav, t_ns[b], rows[b], std[b], cseq[b], pub_ns[b]))
 
     learn = None
     if args.learning:
