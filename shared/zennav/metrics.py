@@ -149,7 +149,7 @@ def write_outputs(out_dir: Path, ds: Dataset, res: ReplayResult, metrics: dict) 
 def write_solution(out_dir: Path, res: ReplayResult) -> None:
     """A replay's rows as nav.txt (KF-GINS .nav format) and nav.csv in out_dir."""
     from .datasets import kfgins
-    from .datasets.fasttext import table_text
+    from .datasets.fasttext import table_bytes
 
     out_dir.mkdir(parents=True, exist_ok=True)
     euler = quat_to_euler(res.q_nb)
@@ -161,7 +161,7 @@ def write_solution(out_dir: Path, res: ReplayResult) -> None:
          res.outage.astype(float)]
     )
     fmts = ["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%.0f"]
-    (out_dir / "nav.csv").write_text(header + "\n" + table_text(cols, fmts, ","), encoding="utf-8")
+    (out_dir / "nav.csv").write_bytes(header.encode() + b"\n" + table_bytes(cols, fmts, ","))
 
 
 def dive_text(d: dict) -> str:

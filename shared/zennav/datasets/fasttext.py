@@ -1,12 +1,13 @@
-"""Fast paths for numeric text tables, over polars' multi-threaded CSV reader and writer (issue 17: np.loadtxt and
-Python's %-formatting were most of a long replay's start and end).
+"""Fast paths for numeric text tables (issue 17: np.loadtxt and Python's %-formatting were most of a long replay's
+start and end).
 
 - ``read_floats``: a table whose rows are the same number of numbers separated by one ``separator`` (what zennav's
-  writers and most tools write); None for anything else (blank lines, runs of spaces, inline comments, a missing
-  field, text), which the checked reader (zennav.datasets.errors.read_table) then parses and reports by line. polars
-  parses with correctly rounded float conversion: the same float64 as np.loadtxt, bit for bit.
-- ``table_text``: the text of a table, columns formatted with one %-spec each; ``%.<d>f`` columns through polars'
-  float_precision output (exact decimal rounding of the binary value, ties to even: the same text as Python's %),
+  writers and most tools write), through polars' multi-threaded CSV reader; None for anything else (blank lines,
+  runs of spaces, inline comments, a missing field, text), which the checked reader
+  (zennav.datasets.errors.read_table) then parses and reports by line. polars parses with correctly rounded float
+  conversion: the same float64 as np.loadtxt, bit for bit.
+- ``table_bytes``: the text of a table, columns formatted with one %-spec each, Python's %-text byte for byte;
+  ``%.<d>f`` columns by integer arithmetic in numpy (the exact decimal rounding of each binary value, ties to even),
   any other spec with Python's %.
 
 polars is imported on the first call for a table of MIN_BYTES or more only (about 0.2 s): a command that reads no
@@ -61,54 +62,132 @@ def read_floats(path, columns: set[int], separator: str = " ", comments: str = "
     return np.ascontiguousarray(df.to_numpy(), dtype=np.float64)
 
 
-def _fixed_series(columns: np.ndarray, decimals: list[int], separator: str) -> list:
-    """polars string Series of runs of columns with the same decimals, each row of a run formatted ``%.<d>f`` and
-    joined by separator (one polars write per run)."""
-    import polars as pl
-
-    out = []
-    j = 0
-    while j < columns.shape[1]:
-        k = j
-        while k < columns.shape[1] and decimals[k] == decimals[j]:
-            k += 1
-        df = pl.DataFrame(columns[:, j:k], schema=[f"c{i}" for i in range(j, k)], orient="row")
-        text = df.write_csv(None, include_header=False, separator=separator, float_precision=decimals[j],
-                            float_scientific=False, line_terminator="\n", quote_style="never")
-        out.append(pl.Series(f"g{j}", [text]).str.split("\n").explode().head(len(columns)))  # no Python str per row
-        j = k
-    return out
-
-
 _FIXED = re.compile(r"%\.(\d+)f")
+_POW10 = 10 ** np.arange(19, dtype=np.int64)  # 1 .. 10**18
+_VELTKAMP = 134217729.0  # 2**27 + 1: splits a double into two halves of 26 bits (Veltkamp, in Dekker 1971)
+CHUNK = 40_000  # rows formatted at once: their bytes stay in the CPU's cache (a power of 2 would thrash it)
 
 
-def table_text(columns: np.ndarray, fmts: list[str], separator: str = " ", lead: str | None = None,
-               ns: np.ndarray | None = None) -> str:
-    """Text of a table, one ``\\n``-terminated line per row: ``lead`` (a constant first field, if given), ``ns``
+def _halves(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Veltkamp's split a = hi + lo, each of at most 26 significant bits (their products are exact)."""
+    c = _VELTKAMP * a
+    hi = c - (c - a)
+    return hi, a - hi
+
+
+def _scaled(x: np.ndarray, d: int) -> np.ndarray | None:
+    """round(|x| 10^d) of the exact product, half to even (the digits ``%.<d>f`` prints), as int64; None when some
+    |x| 10^d is 2^52 or more.
+
+    y = fl(|x| 10^d) is the double nearest the exact product z, and below 2^52 every half-integer is a double: so z
+    and y round to the same integer unless y is a half-integer. There the product's rounding error e = z - y,
+    exact by Dekker's two-product (Dekker 1971; Ogita, Rump and Oishi 2005), decides: e = 0 is a true tie."""
+    p = 10.0**d
+    a = np.abs(x)
+    y = a * p
+    if y.size and not y.max() < 2.0**52:
+        return None
+    r = np.rint(y)  # half to even
+    t = y - r  # exact
+    tie = np.flatnonzero(np.abs(t) == 0.5)
+    if tie.size:
+        (ah, al), (ph, pl) = _halves(a[tie]), _halves(np.float64(p))
+        e = ((ah * ph - y[tie]) + ah * pl + al * ph) + al * pl
+        r[tie] += ((t[tie] > 0) & (e > 0)).astype(float) - ((t[tie] < 0) & (e < 0))
+    return r.astype(np.int64)
+
+
+def _width(m: np.ndarray) -> int:
+    """Decimal digits of the largest of m (int64 >= 0), at least 1."""
+    return max(1, int(np.searchsorted(_POW10, m.max(), side="right")))
+
+
+def _put_digits(rows: np.ndarray, m: np.ndarray, blank: bool) -> None:
+    """The decimal digits of m (int64, 0 <= m < 10**width) as ASCII into rows (width, N) uint8, units last; blank: the
+    zeros before the first digit (the units' kept) as 0 bytes (dropped later), else printed. Eight digits at a time
+    in uint32 (numpy divides by a constant fast)."""
+    w = len(rows)
+    rest = m
+    for lo in range(0, w, 8):
+        if lo + 8 < w:
+            up = rest // 100_000_000
+            c = (rest - up * 100_000_000).astype(np.uint32)
+            rest = up
+        else:
+            c = rest.astype(np.uint32)
+        for p in range(lo, min(lo + 8, w)):
+            q = c // 10
+            digit = c - q * 10
+            c = q
+            if blank and p:
+                rows[w - 1 - p] = np.where(m >= _POW10[p], digit + 48, 0)
+            else:
+                np.add(digit, 48, out=rows[w - 1 - p], casting="unsafe")
+
+
+def _python_text(columns: np.ndarray, fmts: list[str], separator: str, lead: str | None,
+                 ns: np.ndarray | None) -> str:
+    """table_bytes' text by Python's %, row by row."""
+    head = "" if lead is None else lead + separator
+    if ns is not None:
+        sec, frac = np.divmod(ns, 1_000_000_000)
+        head_rows = [f"{head}{a}.{b:09d}{separator}" for a, b in zip(sec.tolist(), frac.tolist())]
+    else:
+        head_rows = [head] * len(columns)
+    fmt = separator.join(fmts) + "\n"
+    return "".join(h + fmt % tuple(row) for h, row in zip(head_rows, columns.tolist()))
+
+
+def table_bytes(columns: np.ndarray, fmts: list[str], separator: str = " ", lead: str | None = None,
+                ns: np.ndarray | None = None) -> bytes:
+    """UTF-8 text of a table, one ``\\n``-terminated line per row: ``lead`` (a constant first field, if given), ``ns``
     (int64 nanoseconds >= 0, if given) as exact decimal seconds ``%d.%09d``, then column j of ``columns`` (N, k)
-    formatted with ``fmts[j]``, the fields joined by ``separator``. All-``%.<d>f`` finite columns go through polars;
-    any other spec or a non-finite value, the whole table with Python's %."""
+    formatted with ``fmts[j]``, the fields joined by ``separator``: Python's %-text byte for byte. Finite
+    ``%.<d>f`` columns (d <= 17, |x| 10^d < 2^52) are formatted by integer arithmetic in numpy (_scaled: the exact
+    decimal rounding), every field right-aligned in a row of bytes whose unused bytes are dropped at the end; any
+    other spec or value, the whole table with Python's %."""
     columns = np.asarray(columns, dtype=np.float64).reshape(-1, len(fmts))
+    ns = None if ns is None else np.asarray(ns, dtype=np.int64)
     n = len(columns)
     fixed = [_FIXED.fullmatch(f) for f in fmts]
-    if n == 0 or not all(fixed) or not np.isfinite(columns).all():
-        head = "" if lead is None else lead + separator
-        if ns is not None:
-            sec, frac = np.divmod(np.asarray(ns, dtype=np.int64), 1_000_000_000)
-            head_rows = [f"{head}{a}.{b:09d}{separator}" for a, b in zip(sec.tolist(), frac.tolist())]
-        else:
-            head_rows = [head] * n
-        fmt = separator.join(fmts) + "\n"
-        return "".join(h + fmt % tuple(row) for h, row in zip(head_rows, columns.tolist()))
-    import polars as pl
-
-    fields = []
-    if lead is not None:
-        fields.append(pl.Series("lead", [lead] * n, dtype=pl.String))
+    decimals = [int(m.group(1)) if m is not None else 99 for m in fixed]
+    scaled = [_scaled(columns[:, j], d) for j, d in enumerate(decimals)] \
+        if n and max(decimals) <= 17 and np.isfinite(columns).all() else [None]
+    if any(m is None for m in scaled):
+        return _python_text(columns, fmts, separator, lead, ns).encode()
+    # (negative or None, integer part >= 0, fraction digits as an integer or None, decimals)
+    numbers: list[tuple[np.ndarray | None, np.ndarray, np.ndarray | None, int]] = []
     if ns is not None:
-        sec, frac = np.divmod(np.asarray(ns, dtype=np.int64), 1_000_000_000)
-        fields.append(pl.Series("s", sec).cast(pl.String) + "." + pl.Series("f", frac).cast(pl.String).str.zfill(9))
-    fields += _fixed_series(columns, [int(m.group(1)) for m in fixed if m is not None], separator)
-    df = pl.DataFrame([f.alias(f"f{i}") for i, f in enumerate(fields)])
-    return df.write_csv(None, include_header=False, separator=separator, line_terminator="\n", quote_style="never")
+        sec = ns // 1_000_000_000
+        numbers.append((None, sec, ns - sec * 1_000_000_000, 9))
+    for j, (m, d) in enumerate(zip(scaled, decimals)):
+        assert m is not None
+        negative = np.signbit(columns[:, j])  # -0.0 and what rounds to 0 keep their sign, as with %
+        q = m // 10**d
+        numbers.append((negative if negative.any() else None, q, m - q * 10**d if d else None, d))
+    head = np.frombuffer(b"" if lead is None else (lead + separator).encode(), dtype=np.uint8)
+    sep = np.frombuffer(separator.encode(), dtype=np.uint8)
+    at, layout = len(head), []  # a line's byte positions: [sign] integer digits [. fraction digits] separator ...
+    for neg, q, _, d in numbers:
+        digits = slice(at + (neg is not None), at + (neg is not None) + _width(q))  # the sign before them
+        fraction = slice(digits.stop + 1, digits.stop + 1 + d)
+        layout.append((digits, fraction))
+        at = (fraction.stop if d else digits.stop) + len(sep)
+    out = []
+    for a in range(0, n, CHUNK):  # the lines' bytes position by position ((position, line): contiguous writes)
+        b = min(n, a + CHUNK)
+        buf = np.empty((at - len(sep) + 1, b - a), dtype=np.uint8)
+        buf[:len(head)] = head[:, None]
+        for (neg, q, f, _), (digits, fraction) in zip(numbers, layout):
+            if neg is not None:
+                buf[digits.start - 1] = np.where(neg[a:b], ord("-"), 0)
+            _put_digits(buf[digits], q[a:b], True)
+            if f is not None:
+                buf[digits.stop] = ord(".")
+                _put_digits(buf[fraction], f[a:b], False)
+            end = fraction.stop if f is not None else digits.stop
+            buf[end:end + len(sep)] = sep[:, None]
+        buf[-1] = ord("\n")
+        lines = np.ascontiguousarray(buf.T).reshape(-1)
+        out.append(lines[lines != 0].tobytes())  # the unused bytes (0) out
+    return b"".join(out)

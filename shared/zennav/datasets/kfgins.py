@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from zennav.datasets.errors import DataError, Table, read_table, read_table_head, read_text
-from zennav.datasets.fasttext import table_text
+from zennav.datasets.fasttext import table_bytes
 from zennav.datasets.streamed import StreamedImu
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
@@ -178,8 +178,8 @@ def _sow_ns(t_ns, week: int) -> np.ndarray:
 def _write_rows(path, t_ns, week: int, columns: np.ndarray, fmt: str, lead: str | None = None) -> None:
     """One line per row: [lead] sow as exact decimal seconds ('%d.%09d'), values formatted with ``fmt`` (one %-spec
     per column)."""
-    text = table_text(np.asarray(columns, dtype=float), fmt.split(" "), " ", lead, _sow_ns(t_ns, week))
-    Path(path).write_text(text, encoding="utf-8")
+    text = table_bytes(np.asarray(columns, dtype=float), fmt.split(" "), " ", lead, _sow_ns(t_ns, week))
+    Path(path).write_bytes(text)
 
 
 def write_imu(path, imu: ImuData, week: int = 0) -> None:
