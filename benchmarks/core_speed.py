@@ -14,7 +14,9 @@
 - KF-GINS (--kf-gins PATH, the binary) on the same KF-GINS files, wall and CPU seconds;
 - --profile stages: where one whole command's time goes (a child ``zennav replay`` on the KF-GINS files with its
   stages timed from inside: imports, loading, the step-wise samples (the head of the IMU file and the GNSS epochs),
-  reading the rest of the IMU file, loading numba, the compiled stretches, the truth, the metrics, the files).
+  waiting for the rest of the IMU file, loading numba, the compiled stretches, waiting for the truth, the metrics,
+  the files; CPU: the process's, all threads), and the reads in the reader thread beside them (the rest of the IMU
+  file, the truth: wall and that thread's CPU).
 
     .venv/bin/python benchmarks/core_speed.py [--minutes 30] [--repeats 3] [--learn-minutes 5] [--kf-gins PATH]
         [--profile loop|command|stages]
@@ -65,12 +67,25 @@ def timed(owner, name, label):
             d = acc.setdefault(label, [0.0, 0.0, 0])
             d[0] += time.perf_counter() - w; d[1] += cpu() - c; d[2] += 1
     setattr(owner, name, g)
+def reader(owner):  # the reads in the reader thread (beside the run): their wall and their thread's CPU seconds
+    f = owner.in_background
+    def g(read):
+        def timed_read():
+            w, c = time.perf_counter(), time.thread_time()
+            try:
+                return read()
+            finally:
+                d = acc.setdefault("reader thread (IMU rest, truth; beside)", [0.0, 0.0, 0])
+                d[0] += time.perf_counter() - w; d[1] += time.thread_time() - c; d[2] += 1
+        return f(timed_read)
+    owner.in_background = g
+reader(ST), reader(KF)
 for owner, name, label in ((REG, "load_dataset", "load dataset (IMU head, GNSS)"),
                            (NV.Navigator, "on_imu", "step-wise samples (head, GNSS epochs)"),
-                           (ST.StreamedImu, "whole", "read the rest of the IMU file"),
+                           (ST.StreamedImu, "whole", "wait for the rest of the IMU file"),
                            (KN, "compiled", "load numba and the kernels"),
                            (NV.Navigator, "run_imu", "compiled stretches"),
-                           (KF, "load_deferred_truth", "read the truth file"), (MT, "evaluate", "metrics"),
+                           (KF, "load_deferred_truth", "wait for the truth file"), (MT, "evaluate", "metrics"),
                            (KF, "write_nav", "write nav.txt"), (MT, "write_solution", "write nav.txt + nav.csv"),
                            (RO.RunRecorder, "write", "write aid.csv, biases.csv, run.json")):
     timed(owner, name, label)

@@ -221,8 +221,9 @@ def run_replay(
     time, outages or not, before that epoch's solution (the odometer's first, then the DVL's and depth's in time
     order; zennav.nodes.ins hands the bus's over the same way). A compensator of another target than "drift" runs
     the engine without the drift target's shadow INSs (config.learn_drift: the samples it learns are the same).
-    IMU data still being read (zennav.datasets.streamed.StreamedImu) runs from its head first (head_plan), then the
-    whole is read and the run goes on: the same events, the same floats.
+    IMU data still being read (zennav.datasets.streamed.StreamedImu) runs from its head first (head_plan), the whole
+    read in the background from its first sample on (StreamedImu.prefetch), then the run goes on over the whole: the
+    same events, the same floats.
 
     loop: how the IMU samples between two events run: "step" (on_imu, sample by sample), "compiled" (the stretches
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
@@ -247,6 +248,8 @@ def run_replay(
     if head is not None:  # the samples the head decides, then the rest of the IMU data (loading, not the loop)
         assert isinstance(imu, StreamedImu)
         run.start(head, imu.head, "step" if loop is None else "python" if loop == "lazy" else loop)  # numba: after
+        run.advance(head, head.k0 + 1)  # the first sample; then the rest of the file is read beside the head's run
+        imu.prefetch()
         run.advance(head, None)
         w0 = time.perf_counter()
         imu.whole()

@@ -26,7 +26,7 @@ import yaml
 
 from zennav.datasets.errors import DataError, Table, read_table, read_table_head, read_text
 from zennav.datasets.fasttext import table_bytes
-from zennav.datasets.streamed import StreamedImu
+from zennav.datasets.streamed import StreamedImu, in_background
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
 from zennav.yamlfile import load_with_nodes
@@ -501,10 +501,15 @@ def load_config(yaml_path, defer_truth: bool = False, stream_imu: bool = False) 
     def trim_gnss(imu_whole: ImuData) -> None:  # endtime -1: the GNSS epochs up to the last IMU sample
         ds.gnss = ds.gnss.slice(ds.gnss.t_ns <= imu_whole.t_ns[-1])
 
+    def read_rest(raw: StreamedImu) -> ImuData:  # the whole IMU file's samples in the window; then a deferred truth
+        whole = _in_window(cfg, raw.whole(), start_ns, end_ns)
+        if "truth_file" in ds.notes:  # read beside the run too (it is as large as the IMU file)
+            ds.notes["truth_file"]["reading"] = in_background(partial(_load_truth_file, dict(truth_file)))
+        return whole
+
     imu: ImuData
     if isinstance(raw, StreamedImu) and np.count_nonzero(_window_keep(raw.head.t_ns, start_ns, end_ns)) >= 2:
-        imu = StreamedImu(_in_window(cfg, raw.head, start_ns, end_ns),
-                          lambda: _in_window(cfg, raw.whole(), start_ns, end_ns), raw.source,
+        imu = StreamedImu(_in_window(cfg, raw.head, start_ns, end_ns), partial(read_rest, raw), raw.source,
                           trim_gnss if end_ns is None else None)
         first_ns = int(imu.head.t_ns[0])
     else:  # the whole now
@@ -554,10 +559,12 @@ def _in_window(cfg: _Config, imu: ImuData, start_ns: int, end_ns: int | None) ->
 
 
 def load_deferred_truth(ds: Dataset) -> None:
-    """Read the truth file that load_config(defer_truth=True) left unread into ds.truth (nothing to do otherwise)."""
+    """Read the truth file that load_config(defer_truth=True) left unread into ds.truth (nothing to do otherwise); with
+    a streamed IMU file it has been reading in the background since the IMU file was read: its result then."""
     truth_file = ds.notes.pop("truth_file", None)
     if truth_file is not None:
-        ds.truth = _load_truth_file(truth_file)
+        reading = truth_file.pop("reading", None)
+        ds.truth = _load_truth_file(truth_file) if reading is None else reading.result()
 
 
 def _load_truth_file(truth_file: dict) -> Truth:
