@@ -11,6 +11,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from itertools import repeat
 
 import numpy as np
@@ -19,6 +20,7 @@ from .datasets.streamed import StreamedImu
 from .messages.sensor import AID_STREAMS
 from .nav.aid import OdometerSample
 from .nav.navigator import AidReport, Navigator
+from .nav.rotation import quat_to_euler
 from .nav.smoother import Recorder, Smoothed, smooth, smooth_rows
 from .nav.types import NS, Dataset, ImuData
 
@@ -47,6 +49,11 @@ class ReplayResult:
     wall_s: float = 0.0
     smoothed: ReplayResult | None = None
     smoothing: Smoothed | None = None
+
+    @cached_property
+    def euler(self) -> np.ndarray:
+        """ZYX Euler angles (roll, pitch, yaw) (N, 3) [rad] of q_nb, computed once (the metrics and nav.txt's)."""
+        return quat_to_euler(self.q_nb)
 
 
 def parse_outage(text: str) -> tuple[float, float]:

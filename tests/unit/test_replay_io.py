@@ -71,18 +71,18 @@ def test_fixed_columns_are_the_percent_text(monkeypatch):
     cols = np.column_stack([v, v[::-1], v * 3.0, np.abs(v) % 1.0, -np.abs(v)])
     fmts = ["%.4f", "%.10f", "%.7f", "%.0f", "%.1f"]
     ns = np.arange(len(v), dtype=np.int64) * 5_000_001 + 7
-    python_text = fasttext._python_text
-    monkeypatch.setattr(fasttext, "_python_text", None)  # numpy's integers only (Python's % would fail)
-    assert table_bytes(cols, fmts, " ", "0", ns) == _percent(cols, fmts, " ", "0", ns)
-    assert table_bytes(cols, fmts, ",") == _percent(cols, fmts, ",")
-    monkeypatch.setattr(fasttext, "_python_text", python_text)
+    python_lines = fasttext._python_lines
+    monkeypatch.setattr(fasttext, "_python_lines", None)  # numpy's integers only (Python's % would fail)
+    assert table_bytes(list(cols.T), fmts, " ", "0", ns) == _percent(cols, fmts, " ", "0", ns)
+    assert table_bytes(list(cols.T), fmts, ",") == _percent(cols, fmts, ",")
+    monkeypatch.setattr(fasttext, "_python_lines", python_lines)
     big = np.column_stack([_values(3, 500), _values(4, 500)])  # 1e15 + 0.5 at 13 decimals: Python's % for the table
-    assert table_bytes(big, ["%.13f", "%.2f"]) == _percent(big, ["%.13f", "%.2f"])
+    assert table_bytes(list(big.T), ["%.13f", "%.2f"]) == _percent(big, ["%.13f", "%.2f"])
     cols[5, 2] = np.nan  # not finite, or another spec: Python's % for the whole table
-    assert table_bytes(cols, fmts) == _percent(cols, fmts)
+    assert table_bytes(list(cols.T), fmts) == _percent(cols, fmts)
     sci = ["%.3e", "%.2f"]
-    assert table_bytes(cols[:, :2], sci) == _percent(cols[:, :2], sci)
-    assert table_bytes(np.empty((0, 2)), ["%.3f", "%.2f"], ns=np.empty(0, dtype=np.int64)) == b""
+    assert table_bytes(list(cols[:, :2].T), sci) == _percent(cols[:, :2], sci)
+    assert table_bytes([np.empty(0), np.empty(0)], ["%.3f", "%.2f"], ns=np.empty(0, dtype=np.int64)) == b""
 
 
 def test_truth_read_after_the_run_is_the_truth(tmp_path):

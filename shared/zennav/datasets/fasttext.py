@@ -6,7 +6,8 @@ start and end).
   runs of spaces, inline comments, a missing field, text), which the checked reader
   (zennav.datasets.errors.read_table) then parses and reports by line. polars parses with correctly rounded float
   conversion: the same float64 as np.loadtxt, bit for bit.
-- ``table_bytes``: the text of a table, columns formatted with one %-spec each, Python's %-text byte for byte;
+- ``table_chunks`` (``table_bytes``, ``write_table``): the text of a table, columns formatted with one %-spec each,
+  Python's %-text byte for byte;
   ``%.<d>f`` columns by integer arithmetic in numpy (the exact decimal rounding of each binary value, ties to even),
   any other spec with Python's %.
 
@@ -16,6 +17,7 @@ such table does not load it.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -77,9 +79,9 @@ def _halves(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return hi, a - hi
 
 
-def _scaled(x: np.ndarray, d: int) -> np.ndarray | None:
-    """round(|x| 10^d) of the exact product, half to even (the digits ``%.<d>f`` prints), as int64; None when some
-    |x| 10^d is 2^52 or more.
+def _scaled(x: np.ndarray, d: int) -> np.ndarray:
+    """round(|x| 10^d) of the exact product, half to even (the digits ``%.<d>f`` prints), as int64; for |x| 10^d below
+    2^52.
 
     y = fl(|x| 10^d) is the double nearest the exact product z, and below 2^52 every half-integer is a double: so z
     and y round to the same integer unless y is a half-integer. There the product's rounding error e = z - y,
@@ -87,8 +89,6 @@ def _scaled(x: np.ndarray, d: int) -> np.ndarray | None:
     p = 10.0**d
     a = np.abs(x)
     y = a * p
-    if y.size and not y.max() < 2.0**52:
-        return None
     r = np.rint(y)  # half to even
     t = y - r  # exact
     tie = np.flatnonzero(np.abs(t) == 0.5)
@@ -99,9 +99,9 @@ def _scaled(x: np.ndarray, d: int) -> np.ndarray | None:
     return r.astype(np.int64)
 
 
-def _width(m: np.ndarray) -> int:
-    """Decimal digits of the largest of m (int64 >= 0), at least 1."""
-    return max(1, int(np.searchsorted(_POW10, m.max(), side="right")))
+def _width(m: int) -> int:
+    """Decimal digits of m >= 0, at least 1."""
+    return max(1, int(np.searchsorted(_POW10, m, side="right")))
 
 
 def _put_digits(rows: np.ndarray, m: np.ndarray, blank: bool) -> None:
@@ -127,69 +127,84 @@ def _put_digits(rows: np.ndarray, m: np.ndarray, blank: bool) -> None:
                 np.add(digit, 48, out=rows[w - 1 - p], casting="unsafe")
 
 
-def _python_text(columns: np.ndarray, fmts: list[str], separator: str, lead: str | None,
-                 ns: np.ndarray | None) -> str:
-    """table_bytes' text by Python's %, row by row."""
+def _python_lines(columns: list[np.ndarray], fmts: list[str], separator: str, lead: str | None,
+                  ns: np.ndarray | None) -> str:
+    """table_chunks' text by Python's %, row by row."""
     head = "" if lead is None else lead + separator
+    n = len(columns[0])
     if ns is not None:
         sec, frac = np.divmod(ns, 1_000_000_000)
         head_rows = [f"{head}{a}.{b:09d}{separator}" for a, b in zip(sec.tolist(), frac.tolist())]
     else:
-        head_rows = [head] * len(columns)
+        head_rows = [head] * n
     fmt = separator.join(fmts) + "\n"
-    return "".join(h + fmt % tuple(row) for h, row in zip(head_rows, columns.tolist()))
+    return "".join(h + fmt % tuple(row) for h, row in zip(head_rows, np.column_stack(columns).tolist()))
 
 
-def table_bytes(columns: np.ndarray, fmts: list[str], separator: str = " ", lead: str | None = None,
-                ns: np.ndarray | None = None) -> bytes:
-    """UTF-8 text of a table, one ``\\n``-terminated line per row: ``lead`` (a constant first field, if given), ``ns``
-    (int64 nanoseconds >= 0, if given) as exact decimal seconds ``%d.%09d``, then column j of ``columns`` (N, k)
-    formatted with ``fmts[j]``, the fields joined by ``separator``: Python's %-text byte for byte. Finite
-    ``%.<d>f`` columns (d <= 17, |x| 10^d < 2^52) are formatted by integer arithmetic in numpy (_scaled: the exact
-    decimal rounding), every field right-aligned in a row of bytes whose unused bytes are dropped at the end; any
-    other spec or value, the whole table with Python's %."""
-    columns = np.asarray(columns, dtype=np.float64).reshape(-1, len(fmts))
+def table_chunks(columns: Sequence[np.ndarray], fmts: list[str], separator: str = " ", lead: str | None = None,
+                 ns: np.ndarray | None = None) -> Iterator[bytes]:
+    """UTF-8 text of a table in pieces of whole lines, one ``\\n``-terminated line per row: ``lead`` (a constant first
+    field, if given), ``ns`` (int64 nanoseconds >= 0, if given) as exact decimal seconds ``%d.%09d``, then
+    ``columns[j]`` (N,) formatted with ``fmts[j]``, the fields joined by ``separator``: Python's %-text byte for byte.
+    Finite ``%.<d>f`` columns (d <= 17, |x| 10^d < 2^52) are formatted by integer arithmetic in numpy (_scaled: the
+    exact decimal rounding), CHUNK rows at a time, each field right-aligned in its widest place, the unused bytes
+    dropped; any other spec or value, the whole table with Python's %."""
+    cols = [np.ascontiguousarray(c, dtype=np.float64).reshape(-1) for c in columns]
     ns = None if ns is None else np.asarray(ns, dtype=np.int64)
-    n = len(columns)
+    n = len(cols[0])
     fixed = [_FIXED.fullmatch(f) for f in fmts]
     decimals = [int(m.group(1)) if m is not None else 99 for m in fixed]
-    scaled = [_scaled(columns[:, j], d) for j, d in enumerate(decimals)] \
-        if n and max(decimals) <= 17 and np.isfinite(columns).all() else [None]
-    if any(m is None for m in scaled):
-        return _python_text(columns, fmts, separator, lead, ns).encode()
-    # (negative or None, integer part >= 0, fraction digits as an integer or None, decimals)
-    numbers: list[tuple[np.ndarray | None, np.ndarray, np.ndarray | None, int]] = []
-    if ns is not None:
-        sec = ns // 1_000_000_000
-        numbers.append((None, sec, ns - sec * 1_000_000_000, 9))
-    for j, (m, d) in enumerate(zip(scaled, decimals)):
-        assert m is not None
-        negative = np.signbit(columns[:, j])  # -0.0 and what rounds to 0 keep their sign, as with %
-        q = m // 10**d
-        numbers.append((negative if negative.any() else None, q, m - q * 10**d if d else None, d))
+    peaks = [float(np.abs(c).max()) if n else 0.0 for c in cols]  # nan if any is
+    if not n or max(decimals) > 17 or not all(p * 10.0**d < 2.0**52 for p, d in zip(peaks, decimals)):
+        if n:
+            yield _python_lines(cols, fmts, separator, lead, ns).encode()
+        return
+    # a number: (column or None, decimals, width of its integer part, whether it has a sign place)
+    numbers: list[tuple[np.ndarray | None, int, int, bool]] = \
+        [] if ns is None else [(None, 9, _width(int(ns.max()) // 1_000_000_000), False)]
+    numbers += [(c, d, _width(int(_scaled(np.array([p]), d)[0]) // 10**d), bool(np.signbit(c).any()))
+                for c, d, p in zip(cols, decimals, peaks)]
     head = np.frombuffer(b"" if lead is None else (lead + separator).encode(), dtype=np.uint8)
     sep = np.frombuffer(separator.encode(), dtype=np.uint8)
-    at, layout = len(head), []  # a line's byte positions: [sign] integer digits [. fraction digits] separator ...
-    for neg, q, _, d in numbers:
-        digits = slice(at + (neg is not None), at + (neg is not None) + _width(q))  # the sign before them
-        fraction = slice(digits.stop + 1, digits.stop + 1 + d)
-        layout.append((digits, fraction))
-        at = (fraction.stop if d else digits.stop) + len(sep)
-    out = []
-    for a in range(0, n, CHUNK):  # the lines' bytes position by position ((position, line): contiguous writes)
+    at, places = len(head), []  # a line's byte places: [sign] integer digits [. fraction digits] separator ...
+    for _, d, w_int, signed in numbers:
+        digits = slice(at + signed, at + signed + w_int)  # the sign before them
+        places.append((digits, slice(digits.stop + 1, digits.stop + 1 + d)))
+        at = digits.stop + (d + 1 if d else 0) + len(sep)
+    for a in range(0, n, CHUNK):  # the lines' bytes place by place ((place, line): contiguous writes)
         b = min(n, a + CHUNK)
         buf = np.empty((at - len(sep) + 1, b - a), dtype=np.uint8)
         buf[:len(head)] = head[:, None]
-        for (neg, q, f, _), (digits, fraction) in zip(numbers, layout):
-            if neg is not None:
-                buf[digits.start - 1] = np.where(neg[a:b], ord("-"), 0)
-            _put_digits(buf[digits], q[a:b], True)
-            if f is not None:
+        for (c, d, _, signed), (digits, fraction) in zip(numbers, places):
+            if c is None:  # ns
+                assert ns is not None
+                m = ns[a:b]
+            else:
+                m = _scaled(c[a:b], d)
+                if signed:  # -0.0 and what rounds to 0 keep their sign, as with %
+                    buf[digits.start - 1] = np.where(np.signbit(c[a:b]), ord("-"), 0)
+            q = m // 10**d
+            _put_digits(buf[digits], q, True)
+            if d:
                 buf[digits.stop] = ord(".")
-                _put_digits(buf[fraction], f[a:b], False)
-            end = fraction.stop if f is not None else digits.stop
+                _put_digits(buf[fraction], m - q * 10**d, False)
+            end = fraction.stop if d else digits.stop
             buf[end:end + len(sep)] = sep[:, None]
         buf[-1] = ord("\n")
         lines = np.ascontiguousarray(buf.T).reshape(-1)
-        out.append(lines[lines != 0].tobytes())  # the unused bytes (0) out
-    return b"".join(out)
+        yield lines[lines != 0].tobytes()  # the unused bytes (0) out
+
+
+def table_bytes(columns: Sequence[np.ndarray], fmts: list[str], separator: str = " ", lead: str | None = None,
+                ns: np.ndarray | None = None) -> bytes:
+    """table_chunks' text in one piece."""
+    return b"".join(table_chunks(columns, fmts, separator, lead, ns))
+
+
+def write_table(path, columns: Sequence[np.ndarray], fmts: list[str], separator: str = " ", lead: str | None = None,
+                ns: np.ndarray | None = None, header: str = "") -> None:
+    """A file of ``header`` then table_chunks' text."""
+    with open(path, "wb") as f:
+        f.write(header.encode())
+        for piece in table_chunks(columns, fmts, separator, lead, ns):
+            f.write(piece)

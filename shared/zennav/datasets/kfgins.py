@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from zennav.datasets.errors import DataError, Table, read_table, read_table_head, read_text
-from zennav.datasets.fasttext import table_bytes
+from zennav.datasets.fasttext import write_table
 from zennav.datasets.streamed import StreamedImu, in_background
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
@@ -175,32 +175,31 @@ def _sow_ns(t_ns, week: int) -> np.ndarray:
     return sow_ns
 
 
-def _write_rows(path, t_ns, week: int, columns: np.ndarray, fmt: str, lead: str | None = None) -> None:
-    """One line per row: [lead] sow as exact decimal seconds ('%d.%09d'), values formatted with ``fmt`` (one %-spec
-    per column)."""
-    text = table_bytes(np.asarray(columns, dtype=float), fmt.split(" "), " ", lead, _sow_ns(t_ns, week))
-    Path(path).write_bytes(text)
+def _write_rows(path, t_ns, week: int, columns: list[np.ndarray], fmt: str, lead: str | None = None) -> None:
+    """One line per row: [lead] sow as exact decimal seconds ('%d.%09d'), the columns (N,) formatted with ``fmt`` (one
+    %-spec per column)."""
+    write_table(path, columns, fmt.split(" "), " ", lead, _sow_ns(t_ns, week))
 
 
 def write_imu(path, imu: ImuData, week: int = 0) -> None:
     """KF-GINS IMU file (7 columns): sow [s], dtheta [rad], dvel [m/s], 17 significant digits."""
-    _write_rows(path, imu.t_ns, week, np.hstack([imu.dtheta, imu.dvel]), " ".join(["%.16e"] * 6))
+    _write_rows(path, imu.t_ns, week, [*imu.dtheta.T, *imu.dvel.T], " ".join(["%.16e"] * 6))
 
 
 def write_gnss(path, gnss: GnssData, week: int = 0, vel_path=None) -> None:
     """KF-GINS GNSS file (7 columns) and, if vel_path is given, the zennav velocity file (needs gnss.v_n)."""
-    deg = np.column_stack([np.rad2deg(gnss.llh[:, :2]), gnss.llh[:, 2], gnss.std_ned])
+    deg = [np.rad2deg(gnss.llh[:, 0]), np.rad2deg(gnss.llh[:, 1]), gnss.llh[:, 2], *gnss.std_ned.T]
     _write_rows(path, gnss.t_ns, week, deg, "%.13f %.13f %.9f %.9f %.9f %.9f")
     if vel_path is not None:
         if gnss.v_n is None or gnss.std_v_n is None:
             raise ValueError("write_gnss: vel_path given but the GNSS data has no velocity")
-        _write_rows(vel_path, gnss.t_ns, week, np.hstack([gnss.v_n, gnss.std_v_n]), " ".join(["%.9f"] * 6))
+        _write_rows(vel_path, gnss.t_ns, week, [*gnss.v_n.T, *gnss.std_v_n.T], " ".join(["%.9f"] * 6))
 
 
 def write_nav(path, week: int, t_ns, llh, v_n, euler) -> None:
     """KF-GINS .nav file: week, sow, lat lon [deg], h [m], v_n [m/s], roll pitch yaw [deg] (llh/euler in rad)."""
-    llh = np.asarray(llh, dtype=float)
-    cols = np.column_stack([np.rad2deg(llh[:, :2]), llh[:, 2], v_n, np.rad2deg(euler)])
+    llh, v_n, euler = (np.asarray(x, dtype=float) for x in (llh, v_n, euler))
+    cols = [np.rad2deg(llh[:, 0]), np.rad2deg(llh[:, 1]), llh[:, 2], *v_n.T, *np.rad2deg(euler).T]
     fmt = "%.13f %.13f %.9f %.9f %.9f %.9f %.12f %.12f %.12f"
     _write_rows(path, t_ns, week, cols, fmt, lead=str(week))
 
