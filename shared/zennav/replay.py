@@ -259,6 +259,10 @@ def run_replay(
         imu.prefetch()
         run.advance(head, None)
         w0 = time.perf_counter()
+        if loop in (None, "lazy") and use_jit(ds, imu.span_s):  # numba loads beside the read (as the whole would)
+            from .nav.kernels import compiled
+
+            compiled()
         imu.whole()
         run.waited += time.perf_counter() - w0
     plan = event_plan(ds, outages, outage_every)  # the whole IMU data from here on
@@ -402,15 +406,18 @@ class _Run:
         self.i, self.j, self.k = i, j, k
 
 
-def use_jit(ds: Dataset) -> bool:
+def use_jit(ds: Dataset, span_s: float | None = None) -> bool:
     """Whether run_replay compiles its loop: ZENNAV_JIT=1 always, 0 never; by default from JIT_MIN_S of IMU data on
     (loading numba and the cached kernels takes about a second; the compiled loop saves about 0.7 s of CPU per minute
-    of 200 Hz data), with a compensator too (its stretches run from one learning event to the next)."""
+    of 200 Hz data), with a compensator too (its stretches run from one learning event to the next). span_s: the IMU
+    data's span [s] if known otherwise (an estimate before it is read: the loop gives the same floats either way)."""
     flag = os.environ.get("ZENNAV_JIT", "")
     if flag in ("0", "1"):
         return flag == "1"
-    t = ds.imu.t_ns
-    return len(t) > 1 and (int(t[-1]) - int(t[0])) / NS >= JIT_MIN_S
+    if span_s is None:
+        t = ds.imu.t_ns
+        span_s = (int(t[-1]) - int(t[0])) / NS if len(t) > 1 else 0.0
+    return span_s >= JIT_MIN_S
 
 
 class AidStreams:

@@ -11,19 +11,38 @@ start and end).
   ``%.<d>f`` columns by integer arithmetic in numpy (the exact decimal rounding of each binary value, ties to even),
   any other spec with Python's %.
 
+- ``in_background``: a read or a write in zennav's one I/O thread, beside the caller (polars parses and numpy formats
+  without holding the GIL).
+
 polars is imported on the first call for a table of MIN_BYTES or more only (about 0.2 s): a command that reads no
 such table does not load it.
 """
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 HEAD_BYTES = 1 << 16  # [bytes] read to find the first data line and count its fields
 MIN_BYTES = 1 << 20  # [bytes] smaller tables go to np.loadtxt: it reads them in less time than polars's import
+
+
+T = TypeVar("T")
+_io: ThreadPoolExecutor | None = None
+
+
+def in_background(job: Callable[[], T]) -> Future[T]:
+    """job() in zennav's I/O thread, after the jobs asked for before it (one thread: files read or written beside the
+    caller's work, polars and numpy running without the GIL); its Future's result() waits for its value or raises its
+    error. A job must not wait for a later one (the thread runs them in order)."""
+    global _io
+    if _io is None:
+        _io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zennav-io")
+    return _io.submit(job)
 
 
 def _field_count(data: bytes, separator: str, comments: str) -> int | None:

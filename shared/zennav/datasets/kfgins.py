@@ -25,8 +25,8 @@ import numpy as np
 import yaml
 
 from zennav.datasets.errors import DataError, Table, read_table, read_table_head, read_text
-from zennav.datasets.fasttext import write_table
-from zennav.datasets.streamed import StreamedImu, in_background
+from zennav.datasets.fasttext import in_background, write_table
+from zennav.datasets.streamed import StreamedImu
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
 from zennav.yamlfile import load_with_nodes
@@ -90,8 +90,9 @@ def load_imu(path, columns: int = 7, remarks: list[str] | None = None, head_byte
     if head_bytes > 0:
         head = read_table_head(path, columns, head_bytes, commas_as_space=True)
         if head is not None:  # the head's remarks are the whole's, made when it is read
-            return StreamedImu(_imu_rows(path, columns, None if remarks is None else [], head),
-                               partial(load_imu, path, columns, remarks), str(path))
+            rows = _imu_rows(path, columns, None if remarks is None else [], head)
+            span_s = (int(rows.t_ns[-1]) - int(rows.t_ns[0])) / NS * Path(path).stat().st_size / head_bytes
+            return StreamedImu(rows, partial(load_imu, path, columns, remarks), str(path), span_s=span_s)
     return _imu_rows(path, columns, remarks)
 
 
@@ -508,8 +509,10 @@ def load_config(yaml_path, defer_truth: bool = False, stream_imu: bool = False) 
 
     imu: ImuData
     if isinstance(raw, StreamedImu) and np.count_nonzero(_window_keep(raw.head.t_ns, start_ns, end_ns)) >= 2:
-        imu = StreamedImu(_in_window(cfg, raw.head, start_ns, end_ns), partial(read_rest, raw), raw.source,
-                          trim_gnss if end_ns is None else None)
+        head = _in_window(cfg, raw.head, start_ns, end_ns)
+        span_s = raw.span_s - (int(head.t_ns[0]) - int(raw.head.t_ns[0])) / NS
+        imu = StreamedImu(head, partial(read_rest, raw), raw.source, trim_gnss if end_ns is None else None,
+                          span_s if end_ns is None else min(span_s, (end_ns - int(head.t_ns[0])) / NS))
         first_ns = int(imu.head.t_ns[0])
     else:  # the whole now
         imu = _in_window(cfg, raw, start_ns, end_ns)
