@@ -12,6 +12,7 @@ import pytest
 from zennav.datasets import fasttext, kfgins
 from zennav.datasets.errors import read_table
 from zennav.datasets.fasttext import read_floats, table_bytes
+from zennav.datasets.streamed import StreamedImu
 from zennav.replay import run_replay
 from zennav.sim.scenarios import make_dataset
 
@@ -85,16 +86,24 @@ def test_fixed_columns_are_the_percent_text(monkeypatch):
     assert table_bytes([np.empty(0), np.empty(0)], ["%.3f", "%.2f"], ns=np.empty(0, dtype=np.int64)) == b""
 
 
-def test_truth_read_after_the_run_is_the_truth(tmp_path):
+def test_truth_read_after_the_run_is_the_truth(tmp_path, monkeypatch):
+    """Read after the run, or in the I/O thread once a streamed IMU file has been read (zennav replay's way)."""
     yaml_path = kfgins.write_dataset(make_dataset("car", duration_s=20.0, seed=3), tmp_path, "car")
     now = kfgins.load_config(yaml_path)
-    later = kfgins.load_config(yaml_path, defer_truth=True)
-    assert later.truth is None and now.truth is not None
-    kfgins.load_deferred_truth(later)
-    assert "truth_file" not in later.notes
-    for name in ("t_ns", "llh", "v_n", "euler"):
-        assert np.array_equal(getattr(later.truth, name), getattr(now.truth, name))
-    assert (later.truth.source, later.truth.at_antenna) == (now.truth.source, now.truth.at_antenna)
+    monkeypatch.setattr(kfgins, "IMU_HEAD_BYTES", 40_000)  # the 20 s IMU file streamed
+    for stream in (False, True):
+        later = kfgins.load_config(yaml_path, defer_truth=True, stream_imu=stream)
+        assert later.truth is None and now.truth is not None
+        if stream:
+            assert isinstance(later.imu, StreamedImu) and abs(later.imu.span_s - 20.0) < 0.5  # its estimate
+            later.imu.prefetch()
+            later.imu.whole()
+            assert "reading" in later.notes["truth_file"]  # the truth file read beside
+        kfgins.load_deferred_truth(later)
+        assert "truth_file" not in later.notes
+        for name in ("t_ns", "llh", "v_n", "euler"):
+            assert np.array_equal(getattr(later.truth, name), getattr(now.truth, name))
+        assert (later.truth.source, later.truth.at_antenna) == (now.truth.source, now.truth.at_antenna)
 
 
 def test_block_loop_that_loads_numba_after_its_first_stretch_gives_the_python_floats():
