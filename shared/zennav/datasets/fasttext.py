@@ -7,10 +7,8 @@ start and end).
   (zennav.datasets.errors.read_table) then parses and reports by line. polars parses with correctly rounded float
   conversion: the same float64 as np.loadtxt, bit for bit.
 - ``table_chunks`` (``table_bytes``, ``write_table``): the text of a table, columns formatted with one %-spec each,
-  Python's %-text byte for byte;
-  ``%.<d>f`` columns by integer arithmetic in numpy (the exact decimal rounding of each binary value, ties to even),
-  any other spec with Python's %.
-
+  Python's %-text byte for byte: ``%.<d>f`` columns by integer arithmetic in numpy (the exact decimal rounding of
+  each binary value, ties to even), any other spec with Python's %.
 - ``in_background``: a read or a write in zennav's one I/O thread, beside the caller (polars parses and numpy formats
   without holding the GIL).
 
