@@ -6,7 +6,8 @@
   difference between the two solutions;
 - command: ``zennav replay`` as a whole command (start-up, reading the KF-GINS text files, writing nav.txt, nav.csv,
   metrics) on the same drive written as KF-GINS files, by default (compiled from JIT_MIN_S of data on) and with
-  ZENNAV_JIT=0; wall and CPU seconds of the child process;
+  ZENNAV_JIT=0; wall and CPU seconds of the child process; with --baseline, another checkout's command alternately
+  with the default (the same files, the same minutes);
 - learning: ``zennav replay sim:car --compensation anfis|elman`` (default target) over --learn-minutes, whole
   command;
 - pyins (``python-ins``, a Python INS with numba, bench extra) on the first --pyins-minutes of the same drive: its
@@ -14,10 +15,12 @@
 - KF-GINS (--kf-gins PATH, the binary) on the same KF-GINS files, wall and CPU seconds;
 - --profile stages: where one whole command's time goes (a child ``zennav replay`` on the KF-GINS files with its
   stages timed from inside: imports, loading, the step-wise samples (the head of the IMU file and the GNSS epochs),
-  reading the rest of the IMU file, loading numba, the compiled stretches, the truth, the metrics, the files).
+  waiting for the rest of the IMU file, loading numba, the compiled stretches, waiting for the truth, the metrics,
+  the files; CPU: the process's, all threads), and the reads in the reader thread beside them (the rest of the IMU
+  file, the truth: wall and that thread's CPU).
 
     .venv/bin/python benchmarks/core_speed.py [--minutes 30] [--repeats 3] [--learn-minutes 5] [--kf-gins PATH]
-        [--profile loop|command|stages]
+        [--baseline OTHER/.venv/bin/zennav] [--profile loop|command|stages]
 """
 from __future__ import annotations
 
@@ -65,12 +68,25 @@ def timed(owner, name, label):
             d = acc.setdefault(label, [0.0, 0.0, 0])
             d[0] += time.perf_counter() - w; d[1] += cpu() - c; d[2] += 1
     setattr(owner, name, g)
+def reader(owner):  # the reads in the reader thread (beside the run): their wall and their thread's CPU seconds
+    f = owner.in_background
+    def g(read):
+        def timed_read():
+            w, c = time.perf_counter(), time.thread_time()
+            try:
+                return read()
+            finally:
+                d = acc.setdefault("reader thread (IMU rest, truth; beside)", [0.0, 0.0, 0])
+                d[0] += time.perf_counter() - w; d[1] += time.thread_time() - c; d[2] += 1
+        return f(timed_read)
+    owner.in_background = g
+reader(ST), reader(KF)
 for owner, name, label in ((REG, "load_dataset", "load dataset (IMU head, GNSS)"),
                            (NV.Navigator, "on_imu", "step-wise samples (head, GNSS epochs)"),
-                           (ST.StreamedImu, "whole", "read the rest of the IMU file"),
+                           (ST.StreamedImu, "whole", "wait for the rest of the IMU file"),
                            (KN, "compiled", "load numba and the kernels"),
                            (NV.Navigator, "run_imu", "compiled stretches"),
-                           (KF, "load_deferred_truth", "read the truth file"), (MT, "evaluate", "metrics"),
+                           (KF, "load_deferred_truth", "wait for the truth file"), (MT, "evaluate", "metrics"),
                            (KF, "write_nav", "write nav.txt"), (MT, "write_solution", "write nav.txt + nav.csv"),
                            (RO.RunRecorder, "write", "write aid.csv, biases.csv, run.json")):
     timed(owner, name, label)
@@ -162,6 +178,9 @@ def main() -> None:
     ap.add_argument("--learn-minutes", type=float, default=5.0, help="drive of the learning runs (0: skip)")
     ap.add_argument("--pyins-minutes", type=float, default=2.0, help="pyins's share of the drive (0: skip)")
     ap.add_argument("--kf-gins", type=Path, default=None, help="a KF-GINS binary to run on the same files")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="another checkout's zennav console script (e.g. main's .venv/bin/zennav): its whole command "
+                         "runs alternately with this one's on the same files")
     ap.add_argument("--profile", choices=("loop", "command", "stages"), default=None,
                     help="print the top of a cProfile of one compiled loop, or of one whole command in-process, or "
                          "the stages of one whole command (a child process)")
@@ -192,10 +211,16 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory(prefix="core_speed_") as tmp:
         yaml_path = kfgins.write_dataset(ds, Path(tmp) / "files", "car")
-        for name, env in (("command, default (target >= 500x)", {}), ("command, ZENNAV_JIT=0", {"ZENNAV_JIT": "0"})):
-            cmd = [ZENNAV, "replay", str(yaml_path), "--outage", f"{data_s / 2:g}:60", "--out", str(Path(tmp) / "out"),
-                   "-q"]
-            wall, cpu = median_pair([child(cmd, env) for _ in range(args.repeats)])
+        cmd = ["replay", str(yaml_path), "--outage", f"{data_s / 2:g}:60", "--out", str(Path(tmp) / "out"), "-q"]
+        if args.baseline is not None:  # the two commands alternately, in the same minutes
+            pairs = [(child([ZENNAV, *cmd]), child([str(args.baseline), *cmd])) for _ in range(args.repeats)]
+            for k, name in enumerate(("command, default (target >= 500x)", "command, --baseline")):
+                wall, cpu = median_pair([p[k] for p in pairs])
+                line(name, data_s, wall, cpu, "KF-GINS text files in, nav.txt/nav.csv out" if k == 0 else
+                     str(args.baseline))
+        for name, env in (() if args.baseline is not None else (("command, default (target >= 500x)", {}),)) + \
+                (("command, ZENNAV_JIT=0", {"ZENNAV_JIT": "0"}),):
+            wall, cpu = median_pair([child([ZENNAV, *cmd], env) for _ in range(args.repeats)])
             line(name, data_s, wall, cpu, "KF-GINS text files in, nav.txt/nav.csv out")
         if args.kf_gins is not None:
             wall, cpu = median_pair([child([str(args.kf_gins), str(yaml_path)], cwd=str(Path(tmp) / "files"))

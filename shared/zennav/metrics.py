@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import json
 import math
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from .nav import earth
 from .nav.navigator import Navigator
-from .nav.rotation import quat_to_dcm, quat_to_euler, wrap_angle
+from .nav.rotation import quat_to_dcm, wrap_angle
 from .nav.types import NS, Dataset
 from .replay import ReplayResult
 
@@ -80,7 +81,7 @@ def evaluate(ds: Dataset, res: ReplayResult) -> dict:
         v_est = _interp(t_ref, res.t_ns, res.v_n)
         m["velocity_rms_mps"] = _rms(np.linalg.norm(v_est - truth.v_n[sel], axis=1))
     if truth.euler is not None:
-        e_est = quat_to_euler(res.q_nb)
+        e_est = res.euler
         idx = np.clip(np.searchsorted(res.t_ns, t_ref), 0, len(res.t_ns) - 1)
         d = wrap_angle(e_est[idx] - truth.euler[sel])
         rms_rad = {k: _rms(d[:, i]) for i, k in enumerate(("roll", "pitch", "yaw"))}  # None: no truth in the run
@@ -147,21 +148,21 @@ def write_outputs(out_dir: Path, ds: Dataset, res: ReplayResult, metrics: dict) 
 
 
 def write_solution(out_dir: Path, res: ReplayResult) -> None:
-    """A replay's rows as nav.txt (KF-GINS .nav format) and nav.csv in out_dir."""
+    """A replay's rows as nav.txt (KF-GINS .nav format) and nav.csv in out_dir (nav.txt in the I/O thread, beside
+    nav.csv: numpy formats them without the GIL)."""
     from .datasets import kfgins
-    from .datasets.fasttext import table_text
+    from .datasets.fasttext import in_background, write_table
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    euler = quat_to_euler(res.q_nb)
+    euler = res.euler
     week = int(res.t_ns[0] // kfgins.WEEK_NS)  # 0 for data timed in seconds of week
-    kfgins.write_nav(out_dir / "nav.txt", week, res.t_ns, res.llh, res.v_n, euler)
-    header = "t_s,lat_deg,lon_deg,h_m,vn_mps,ve_mps,vd_mps,roll_deg,pitch_deg,yaw_deg,std_n_m,std_e_m,std_d_m,outage"
-    cols = np.column_stack(
-        [res.t_ns / NS, np.degrees(res.llh[:, :2]), res.llh[:, 2], res.v_n, np.degrees(euler), res.std_pos_ned,
-         res.outage.astype(float)]
-    )
+    nav_txt = in_background(partial(kfgins.write_nav, out_dir / "nav.txt", week, res.t_ns, res.llh, res.v_n, euler))
+    header = "t_s,lat_deg,lon_deg,h_m,vn_mps,ve_mps,vd_mps,roll_deg,pitch_deg,yaw_deg,std_n_m,std_e_m,std_d_m,outage\n"
+    cols = [res.t_ns / NS, np.degrees(res.llh[:, 0]), np.degrees(res.llh[:, 1]), res.llh[:, 2], *res.v_n.T,
+            *np.degrees(euler).T, *res.std_pos_ned.T, res.outage.astype(float)]
     fmts = ["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.5f"] * 3 + ["%.4f"] * 3 + ["%.0f"]
-    (out_dir / "nav.csv").write_text(header + "\n" + table_text(cols, fmts, ","), encoding="utf-8")
+    write_table(out_dir / "nav.csv", cols, fmts, ",", header=header)  # beside nav.txt
+    nav_txt.result()
 
 
 def dive_text(d: dict) -> str:

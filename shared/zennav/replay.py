@@ -11,6 +11,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from itertools import repeat
 
 import numpy as np
@@ -19,6 +20,7 @@ from .datasets.streamed import StreamedImu
 from .messages.sensor import AID_STREAMS
 from .nav.aid import OdometerSample
 from .nav.navigator import AidReport, Navigator
+from .nav.rotation import quat_to_euler
 from .nav.smoother import Recorder, Smoothed, smooth, smooth_rows
 from .nav.types import NS, Dataset, ImuData
 
@@ -47,6 +49,11 @@ class ReplayResult:
     wall_s: float = 0.0
     smoothed: ReplayResult | None = None
     smoothing: Smoothed | None = None
+
+    @cached_property
+    def euler(self) -> np.ndarray:
+        """ZYX Euler angles (roll, pitch, yaw) (N, 3) [rad] of q_nb, computed once (the metrics and nav.txt's)."""
+        return quat_to_euler(self.q_nb)
 
 
 def parse_outage(text: str) -> tuple[float, float]:
@@ -221,8 +228,9 @@ def run_replay(
     time, outages or not, before that epoch's solution (the odometer's first, then the DVL's and depth's in time
     order; zennav.nodes.ins hands the bus's over the same way). A compensator of another target than "drift" runs
     the engine without the drift target's shadow INSs (config.learn_drift: the samples it learns are the same).
-    IMU data still being read (zennav.datasets.streamed.StreamedImu) runs from its head first (head_plan), then the
-    whole is read and the run goes on: the same events, the same floats.
+    IMU data still being read (zennav.datasets.streamed.StreamedImu) runs from its head first (head_plan), the whole
+    read in the background from its first sample on (StreamedImu.prefetch), then the run goes on over the whole: the
+    same events, the same floats.
 
     loop: how the IMU samples between two events run: "step" (on_imu, sample by sample), "compiled" (the stretches
     in the engine's compiled block loop, Navigator.run_imu: the same floats), "python" (that block loop as Python, for
@@ -247,8 +255,14 @@ def run_replay(
     if head is not None:  # the samples the head decides, then the rest of the IMU data (loading, not the loop)
         assert isinstance(imu, StreamedImu)
         run.start(head, imu.head, "step" if loop is None else "python" if loop == "lazy" else loop)  # numba: after
+        run.advance(head, head.k0 + 1)  # the first sample; then the rest of the file is read beside the head's run
+        imu.prefetch()
         run.advance(head, None)
         w0 = time.perf_counter()
+        if loop in (None, "lazy") and use_jit(ds, imu.span_s):  # numba loads beside the read (as the whole would)
+            from .nav.kernels import compiled
+
+            compiled()
         imu.whole()
         run.waited += time.perf_counter() - w0
     plan = event_plan(ds, outages, outage_every)  # the whole IMU data from here on
@@ -392,15 +406,18 @@ class _Run:
         self.i, self.j, self.k = i, j, k
 
 
-def use_jit(ds: Dataset) -> bool:
+def use_jit(ds: Dataset, span_s: float | None = None) -> bool:
     """Whether run_replay compiles its loop: ZENNAV_JIT=1 always, 0 never; by default from JIT_MIN_S of IMU data on
     (loading numba and the cached kernels takes about a second; the compiled loop saves about 0.7 s of CPU per minute
-    of 200 Hz data), with a compensator too (its stretches run from one learning event to the next)."""
+    of 200 Hz data), with a compensator too (its stretches run from one learning event to the next). span_s: the IMU
+    data's span [s] if known otherwise (an estimate before it is read: the loop gives the same floats either way)."""
     flag = os.environ.get("ZENNAV_JIT", "")
     if flag in ("0", "1"):
         return flag == "1"
-    t = ds.imu.t_ns
-    return len(t) > 1 and (int(t[-1]) - int(t[0])) / NS >= JIT_MIN_S
+    if span_s is None:
+        t = ds.imu.t_ns
+        span_s = (int(t[-1]) - int(t[0])) / NS if len(t) > 1 else 0.0
+    return span_s >= JIT_MIN_S
 
 
 class AidStreams:

@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from zennav.datasets.errors import DataError, Table, read_table, read_table_head, read_text
-from zennav.datasets.fasttext import table_text
+from zennav.datasets.fasttext import in_background, write_table
 from zennav.datasets.streamed import StreamedImu
 from zennav.nav.rotation import wrap_angle
 from zennav.nav.types import NS, Dataset, FixType, GnssData, ImuData, ImuNoise, InitialState, NavConfig, Truth
@@ -90,8 +90,9 @@ def load_imu(path, columns: int = 7, remarks: list[str] | None = None, head_byte
     if head_bytes > 0:
         head = read_table_head(path, columns, head_bytes, commas_as_space=True)
         if head is not None:  # the head's remarks are the whole's, made when it is read
-            return StreamedImu(_imu_rows(path, columns, None if remarks is None else [], head),
-                               partial(load_imu, path, columns, remarks), str(path))
+            rows = _imu_rows(path, columns, None if remarks is None else [], head)
+            span_s = (int(rows.t_ns[-1]) - int(rows.t_ns[0])) / NS * Path(path).stat().st_size / head_bytes
+            return StreamedImu(rows, partial(load_imu, path, columns, remarks), str(path), span_s=span_s)
     return _imu_rows(path, columns, remarks)
 
 
@@ -175,32 +176,31 @@ def _sow_ns(t_ns, week: int) -> np.ndarray:
     return sow_ns
 
 
-def _write_rows(path, t_ns, week: int, columns: np.ndarray, fmt: str, lead: str | None = None) -> None:
-    """One line per row: [lead] sow as exact decimal seconds ('%d.%09d'), values formatted with ``fmt`` (one %-spec
-    per column)."""
-    text = table_text(np.asarray(columns, dtype=float), fmt.split(" "), " ", lead, _sow_ns(t_ns, week))
-    Path(path).write_text(text, encoding="utf-8")
+def _write_rows(path, t_ns, week: int, columns: list[np.ndarray], fmt: str, lead: str | None = None) -> None:
+    """One line per row: [lead] sow as exact decimal seconds ('%d.%09d'), the columns (N,) formatted with ``fmt`` (one
+    %-spec per column)."""
+    write_table(path, columns, fmt.split(" "), " ", lead, _sow_ns(t_ns, week))
 
 
 def write_imu(path, imu: ImuData, week: int = 0) -> None:
     """KF-GINS IMU file (7 columns): sow [s], dtheta [rad], dvel [m/s], 17 significant digits."""
-    _write_rows(path, imu.t_ns, week, np.hstack([imu.dtheta, imu.dvel]), " ".join(["%.16e"] * 6))
+    _write_rows(path, imu.t_ns, week, [*imu.dtheta.T, *imu.dvel.T], " ".join(["%.16e"] * 6))
 
 
 def write_gnss(path, gnss: GnssData, week: int = 0, vel_path=None) -> None:
     """KF-GINS GNSS file (7 columns) and, if vel_path is given, the zennav velocity file (needs gnss.v_n)."""
-    deg = np.column_stack([np.rad2deg(gnss.llh[:, :2]), gnss.llh[:, 2], gnss.std_ned])
+    deg = [np.rad2deg(gnss.llh[:, 0]), np.rad2deg(gnss.llh[:, 1]), gnss.llh[:, 2], *gnss.std_ned.T]
     _write_rows(path, gnss.t_ns, week, deg, "%.13f %.13f %.9f %.9f %.9f %.9f")
     if vel_path is not None:
         if gnss.v_n is None or gnss.std_v_n is None:
             raise ValueError("write_gnss: vel_path given but the GNSS data has no velocity")
-        _write_rows(vel_path, gnss.t_ns, week, np.hstack([gnss.v_n, gnss.std_v_n]), " ".join(["%.9f"] * 6))
+        _write_rows(vel_path, gnss.t_ns, week, [*gnss.v_n.T, *gnss.std_v_n.T], " ".join(["%.9f"] * 6))
 
 
 def write_nav(path, week: int, t_ns, llh, v_n, euler) -> None:
     """KF-GINS .nav file: week, sow, lat lon [deg], h [m], v_n [m/s], roll pitch yaw [deg] (llh/euler in rad)."""
-    llh = np.asarray(llh, dtype=float)
-    cols = np.column_stack([np.rad2deg(llh[:, :2]), llh[:, 2], v_n, np.rad2deg(euler)])
+    llh, v_n, euler = (np.asarray(x, dtype=float) for x in (llh, v_n, euler))
+    cols = [np.rad2deg(llh[:, 0]), np.rad2deg(llh[:, 1]), llh[:, 2], *v_n.T, *np.rad2deg(euler).T]
     fmt = "%.13f %.13f %.9f %.9f %.9f %.9f %.12f %.12f %.12f"
     _write_rows(path, t_ns, week, cols, fmt, lead=str(week))
 
@@ -501,11 +501,18 @@ def load_config(yaml_path, defer_truth: bool = False, stream_imu: bool = False) 
     def trim_gnss(imu_whole: ImuData) -> None:  # endtime -1: the GNSS epochs up to the last IMU sample
         ds.gnss = ds.gnss.slice(ds.gnss.t_ns <= imu_whole.t_ns[-1])
 
+    def read_rest(raw: StreamedImu) -> ImuData:  # the whole IMU file's samples in the window; then a deferred truth
+        whole = _in_window(cfg, raw.whole(), start_ns, end_ns)
+        if "truth_file" in ds.notes:  # read beside the run too (it is as large as the IMU file)
+            ds.notes["truth_file"]["reading"] = in_background(partial(_load_truth_file, dict(truth_file)))
+        return whole
+
     imu: ImuData
     if isinstance(raw, StreamedImu) and np.count_nonzero(_window_keep(raw.head.t_ns, start_ns, end_ns)) >= 2:
-        imu = StreamedImu(_in_window(cfg, raw.head, start_ns, end_ns),
-                          lambda: _in_window(cfg, raw.whole(), start_ns, end_ns), raw.source,
-                          trim_gnss if end_ns is None else None)
+        head = _in_window(cfg, raw.head, start_ns, end_ns)
+        span_s = raw.span_s - (int(head.t_ns[0]) - int(raw.head.t_ns[0])) / NS
+        imu = StreamedImu(head, partial(read_rest, raw), raw.source, trim_gnss if end_ns is None else None,
+                          span_s if end_ns is None else min(span_s, (end_ns - int(head.t_ns[0])) / NS))
         first_ns = int(imu.head.t_ns[0])
     else:  # the whole now
         imu = _in_window(cfg, raw, start_ns, end_ns)
@@ -554,10 +561,12 @@ def _in_window(cfg: _Config, imu: ImuData, start_ns: int, end_ns: int | None) ->
 
 
 def load_deferred_truth(ds: Dataset) -> None:
-    """Read the truth file that load_config(defer_truth=True) left unread into ds.truth (nothing to do otherwise)."""
+    """Read the truth file that load_config(defer_truth=True) left unread into ds.truth (nothing to do otherwise); with
+    a streamed IMU file it has been reading in the background since the IMU file was read: its result then."""
     truth_file = ds.notes.pop("truth_file", None)
     if truth_file is not None:
-        ds.truth = _load_truth_file(truth_file)
+        reading = truth_file.pop("reading", None)
+        ds.truth = _load_truth_file(truth_file) if reading is None else reading.result()
 
 
 def _load_truth_file(truth_file: dict) -> Truth:
