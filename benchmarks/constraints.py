@@ -6,8 +6,9 @@ rtklibexplorer (real car, MEMS IMU, RTK reference): GNSS withheld for L = 10, 30
 of that RMS against pure INS, and the RMS of the along-track and cross-track parts of each window's peak error
 (against the true course: the forward-speed and heading parts of the drift). Rows: pure INS; NHC; NHC+ZUPT;
 NHC+ZUPT with learned compensation (anfis, elman; each for --seeds, and their median; with --forward-only the
-learned body velocity gives the forward speed alone, NavConfig.learn_forward_only; with --where-better an output
-is fused only where its 1-sigma is below the filter's, NavConfig.learn_where_better; --held-fraction F: that part of
+learned body velocity gives the forward speed alone, NavConfig.learn_forward_only; --where-better off|nhc|on: an
+output is fused only where its 1-sigma is below the filter's, never, under the NHC, always,
+NavConfig.learn_where_better; --held-fraction F: that part of
 each answer's variance is a bias held through the outage, NavConfig.learn_held_fraction; --nhc-floor: the lateral
 and vertical 1-sigma at least the constraint's, NavConfig.learn_nhc_floor; --consistency: each output's R from its
 innovations against the filter, NavConfig.learn_consistency). Under each learned run, its
@@ -21,8 +22,9 @@ sim:car (600 s, MEMS, its odometer 2 % fast with 0.05 m/s noise): the same windo
 odometer (scale-factor state estimated), and the scale factor's final estimate.
 
     .venv/bin/python benchmarks/constraints.py [--windows 10,30,60] [--seeds 0,1,2] [--jobs 2] [--no-learned]
-        [--datasets rtklibexplorer,sim:car] [--forward-only] [--where-better] [--held-fraction F] [--nhc-floor]
-        [--consistency] [--per-window]
+        [--datasets rtklibexplorer,sim:car] [--forward-only] [--where-better off|nhc|on] [--held-fraction F]
+        [--nhc-floor]
+        [--consistency] [--per-window] [--models anfis,elman]
 """
 from __future__ import annotations
 
@@ -158,9 +160,9 @@ def main() -> None:
     ap.add_argument("--datasets", default="rtklibexplorer,sim:car")
     ap.add_argument("--forward-only", action="store_true",
                     help="learned rows fuse the forward body velocity alone (learn_forward_only)")
-    ap.add_argument("--where-better", action="store_true",
-                    help="learned rows fuse an output only where its 1-sigma is below the filter's"
-                         " (learn_where_better)")
+    ap.add_argument("--where-better", choices=("off", "nhc", "on"), default="",
+                    help="learned rows fuse an output only where its 1-sigma is below the filter's: on, nhc (while"
+                         " the NHC is on), off (learn_where_better; default: the parameter file's)")
     ap.add_argument("--held-fraction", type=float, default=0.0,
                     help="learned rows: this part of each answer's variance is a bias held through the outage"
                          " (learn_held_fraction)")
@@ -169,10 +171,12 @@ def main() -> None:
     ap.add_argument("--consistency", action="store_true",
                     help="learned rows: each output's R from its innovations against the filter (learn_consistency)")
     ap.add_argument("--per-window", action="store_true", help="print each row's per-window maxima")
+    ap.add_argument("--models", default=",".join(LEARNED), help="learned rows of these models (anfis, elman)")
     args = ap.parse_args()
     lengths = [float(x) for x in args.windows.split(",")]
     seeds = [int(x) for x in args.seeds.split(",")]
     specs = args.datasets.split(",")
+    models = [m for m in LEARNED if m in args.models.split(",")]
     options = tuple((name, value) for name, value in (
         ("learn_forward_only", args.forward_only), ("learn_where_better", args.where_better),
         ("learn_held_fraction", args.held_fraction), ("learn_nhc_floor", args.nhc_floor),
@@ -183,7 +187,7 @@ def main() -> None:
             jobs += [("rtklibexplorer", length, cons, "none", 0, ()) for _, cons in ROWS]
             if not args.no_learned:
                 jobs += [("rtklibexplorer", length, ("nhc", "zupt"), model, s, options)
-                         for model in LEARNED for s in seeds]
+                         for model in models for s in seeds]
         if "sim:car" in specs:
             jobs += [("sim:car", length, cons, "none", 0, ()) for _, cons in SIM_ROWS]
     wall = time.perf_counter()
@@ -216,7 +220,7 @@ def main() -> None:
                     print(f"{'':>21}odometer scale error {100 * scale[0]:.3f} % +- {100 * scale[1]:.3f} % "
                           f"(simulated {100 * scale[2]:.3f} %)")
             if spec == "rtklibexplorer" and not args.no_learned:
-                for model in LEARNED:
+                for model in models:
                     learned = [results[(spec, length, ("nhc", "zupt"), model, s, options)] for s in seeds]
                     runs = [r[0] for r in learned]
                     for s, (drifts, parts, _, acc, _) in zip(seeds, learned):

@@ -94,7 +94,7 @@ FILTER: dict[str, Param] = {
     "learn_horizon_s": Param("learning", "s"),
     "learn_answer_max_age_s": Param("learning", "s"),
     "learn_forward_only": Param("learning", "", "bool"),
-    "learn_where_better": Param("learning", "", "bool"),
+    "learn_where_better": Param("learning", "", "choice", choices=("off", "nhc", "on")),
     "learn_held_fraction": Param("learning", ""),
     "learn_nhc_floor": Param("learning", "", "bool"),
     "learn_consistency": Param("learning", "", "bool"),

@@ -243,7 +243,7 @@ def test_learned_forward_only_leaves_the_lateral_and_vertical_to_the_nhc(car):
 
     lateral = {}
     for forward_only in (False, True):
-        config = car.config.with_(nhc=True, learning=True, learn_forward_only=forward_only)
+        config = car.config.with_(nhc=True, learning=True, learn_forward_only=forward_only, learn_where_better="off")
         nav = Navigator(config, car.initial)
         v_b0 = nav.state.C_nb.T @ nav.state.v_n
         sigma = float(nav.std_v_n.min())  # answers one sigma of the velocity away, as sure as the filter
@@ -256,13 +256,15 @@ def test_learned_forward_only_leaves_the_lateral_and_vertical_to_the_nhc(car):
     np.testing.assert_allclose(lateral[True], 0.0, atol=0.01 * sigma)  # through P's correlations only
 
 
-def test_learned_where_better_fuses_only_the_outputs_the_model_knows_better(car):
-    """With learn_where_better, a learned body-velocity output is fused only where its 1-sigma is below the
-    filter's own 1-sigma of it: a sure forward and an unsure lateral and vertical answer move the forward body
-    velocity alone; an answer unsure in every output is not fused (counted learned_body_velocity_weak)."""
+@pytest.mark.parametrize("where_better, nhc", [("on", False), ("nhc", True)])
+def test_learned_where_better_fuses_only_the_outputs_the_model_knows_better(car, where_better, nhc):
+    """With learn_where_better (on; nhc: under the non-holonomic constraint), a learned body-velocity output is
+    fused only where its 1-sigma is below the filter's own 1-sigma of it: a sure forward and an unsure lateral and
+    vertical answer move the forward body velocity alone; an answer unsure in every output is not fused (counted
+    learned_body_velocity_weak)."""
     from zennav.nav.learning import LearnQuery
 
-    config = car.config.with_(learning=True, learn_where_better=True)
+    config = car.config.with_(learning=True, learn_where_better=where_better, nhc=nhc)
     nav = Navigator(config, car.initial)
     v_b0 = nav.state.C_nb.T @ nav.state.v_n
     sigma = float(nav.std_v_n.min())
@@ -274,6 +276,20 @@ def test_learned_where_better_fuses_only_the_outputs_the_model_knows_better(car)
     dv_b = nav.state.C_nb.T @ nav.state.v_n - v_b0
     assert dv_b[0] > 0.5 * sigma
     np.testing.assert_allclose(dv_b[1:], 0.0, atol=0.05 * sigma)  # through P's correlations only
+
+
+def test_learned_where_better_nhc_applies_under_the_nhc_only(car):
+    """learn_where_better nhc leaves an answer unsure in every output out under the non-holonomic constraint and
+    fuses it without the constraint."""
+    from zennav.nav.learning import LearnQuery
+
+    for nhc in (True, False):
+        nav = Navigator(car.config.with_(learning=True, learn_where_better="nhc", nhc=nhc), car.initial)
+        sigma = float(nav.std_v_n.min())
+        query = LearnQuery(nav.t_ns, "body_velocity", np.zeros(12), 1.0)
+        v_b0 = nav.state.C_nb.T @ nav.state.v_n
+        assert nav.on_correction(query, v_b0 + sigma, np.full(3, 10.0 * sigma)) is not nhc
+        assert nav.counters["learned_body_velocity_weak"] == int(nhc)
 
 
 def test_learned_held_error_does_not_shrink_with_the_number_of_answers(car):
@@ -323,7 +339,8 @@ def test_learned_lateral_sigma_is_floored_at_the_nhc_under_the_constraint(car):
     floor = math.sqrt(correlated_variance(car.config.nhc_std_mps, BODY_EVERY_S, car.config.nhc_corr_s))
     lateral = {}
     for nhc_floor, claimed in ((True, 0.01 * floor), (False, floor)):
-        nav = Navigator(car.config.with_(nhc=True, learning=True, learn_nhc_floor=nhc_floor), car.initial)
+        nav = Navigator(car.config.with_(nhc=True, learning=True, learn_nhc_floor=nhc_floor, learn_where_better="off"),
+                        car.initial)
         v_b0 = nav.state.C_nb.T @ nav.state.v_n
         query = LearnQuery(nav.t_ns, "body_velocity", np.zeros(12), 1.0)
         assert nav.on_correction(query, v_b0 + np.array([0.0, 0.5, 0.0]), np.array([1.0, claimed, claimed]))

@@ -298,7 +298,9 @@ class NavConfig:
     learn_drift: bool = True  # run the shadow INSs of the "drift" target's samples (off: none of its samples)
     learn_answer_max_age_s: float = 1.0  # a learned answer is fused only if its query is at most this old [s]
     learn_forward_only: bool = False  # with nhc: fuse only the forward output of the learned body velocity
-    learn_where_better: bool = False  # fuse a learned body-velocity output only where its 1-sigma is below the filter's
+    # fuse a learned body-velocity output only where its 1-sigma is below the filter's own 1-sigma of it: "on"
+    # always, "nhc" while the non-holonomic constraint is on, "off" never (zennav.nav.aid.learned)
+    learn_where_better: str = "nhc"
     learn_held_fraction: float = 0.0  # part of a learned body-velocity answer's variance that is a bias held through
     # the outage (a random-constant state per output, restarted at each outage's first answer); the rest is white
     learn_nhc_floor: bool = False  # with nhc: floor the learned lateral and vertical 1-sigma at the constraint's own

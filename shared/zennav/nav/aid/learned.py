@@ -20,6 +20,22 @@ engine's queries, fused as a pseudo-measurement and gated like GNSS.
   an answer with no such output is counted learned_body_velocity_weak. Measured there (seed 0, benchmarks/
   constraints.py --where-better): the learned rows equal NHC+ZUPT within 0.1 m at 10, 30 and 60 s windows: no
   longer worse at 30 and 60 s, and the gain of the plain fusion at 10 s is gone.
+  The rule has three modes (learn_where_better): on, off and nhc, the default: on under the non-holonomic
+  constraint alone, where the constrained filter's own body velocity is the answer to beat (its lateral and
+  vertical outputs held by the constraint).
+  There a learned answer's error holds through an outage (the ANFIS's outputs without held-out skill are the
+  target's mean, the same value whatever the features: its error is the vehicle's deviation from its mean speed),
+  so its answers, each weaker than the filter, add up to a confident wrong pull; without the constraint the
+  filter's own lateral and vertical velocity drift freely and the many weaker answers are what holds them.
+  Measured with the rules below as they stand (benchmarks/constraints.py --where-better on, learned rows on NHC +
+  ZUPT, median of seeds 0-2, RMS of the per-window maximum; off -> nhc): 10 s windows, ANFIS 1.17 -> 1.17 m and
+  Elman 1.18 -> 1.19 m (NHC + ZUPT 1.22 m); 30 s, ANFIS 8.06 -> 6.90 m and Elman 6.72 -> 7.07 m (7.14 m); 60 s,
+  ANFIS 19.11 -> 17.01 m and Elman 20.56 -> 15.18 m (25.96 m): both lower than NHC + ZUPT at the three lengths,
+  Elman 0.35 m higher than without the rule at 30 s. The ANFIS's 30 s loss was one window (the fourth: 14.51 m
+  with NHC + ZUPT, 17.25 m with its answers, all three outputs its mean; seed 0, fusing all but the forward
+  output 15.61 m, all but the vertical 15.75 m, where better 14.51 m). On sim:car without constraints (600 s,
+  30 s outages every 120 s) mode on would raise the sum of the outage maxima from 12.30 to 15.91 m (ANFIS) and
+  14.12 to 15.89 m (Elman): mode nhc leaves it as it was.
   Two rules for its error model (each a NavConfig switch):
   * held error (learn_held_fraction f > 0): the answer's error is e = b + w, b a bias held through the outage and w
     white, with variances f std^2 and (1 - f) std^2 of the answered 1-sigma std. b is an augmented random-constant
@@ -95,7 +111,7 @@ class LearnedSource(AidSource):
         self.max_age_ns = int(config.learn_answer_max_age_s * NS)
         # rows of the body-velocity answer that are fused (FRD)
         self.body_rows = [0] if config.nhc and config.learn_forward_only else [0, 1, 2]
-        self.where_better = config.learn_where_better
+        self.where_better = config.learn_where_better == "on" or (config.learn_where_better == "nhc" and config.nhc)
         body = target == "body_velocity"
         self.held = config.learn_held_fraction if body else 0.0
         self.bias: slice | None = None  # the held-error states (attach), FRD
