@@ -296,6 +296,8 @@ def _convert(value, spec: Param, where: str):
     if spec.kind == "vec3":
         return _convert_vec3(value, spec, where)
     if spec.kind == "choice":
+        if isinstance(value, bool) and ("on" if value else "off") in spec.choices:
+            value = "on" if value else "off"  # YAML 1.1 reads a bare on / off as a boolean
         if not isinstance(value, str) or value not in spec.choices:
             raise ParamError(f"{where}: {value!r} is not one of {', '.join(spec.choices)}")
         return value

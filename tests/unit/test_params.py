@@ -50,6 +50,16 @@ def test_units_convert_and_partial_file_keeps_defaults(tmp_path):
     assert np.array_equal(cfg.lever_arm_b, [0.1, 0.2, 0.3])
 
 
+def test_a_bare_on_or_off_is_the_choice_of_that_name(tmp_path):
+    """YAML reads a bare off / on as a boolean: a choice setting with such a choice takes it by name."""
+    p = _write(tmp_path, "  learning:\n    learn_where_better: off\n  dvl:\n    dvl_mode: off\n")
+    assert load_filter_params(p) == {"learn_where_better": "off", "dvl_mode": "off"}
+    p = _write(tmp_path, "  learning:\n    learn_where_better: on\n")
+    assert load_filter_params(p) == {"learn_where_better": "on"}
+    with pytest.raises(ParamError, match="True is not one of off, loose, tight"):
+        load_filter_params(_write(tmp_path, "  dvl:\n    dvl_mode: on\n"))
+
+
 @pytest.mark.parametrize("body, line, message", [
     ("  gnss:\n    pos_std_floor_m: 5 cm\n", 3, "gnss.pos_std_floor_m: unit 'cm' where 'm' is expected"),
     ("  gnss:\n    pos_std_floor_m: 0.05\n", 3, "gnss.pos_std_floor_m: no unit where 'm' is expected"),
