@@ -149,6 +149,8 @@ class StreamFollower:
         self._last_cseq = -1  # cseq of the last sample handed on
         self._refused = 0  # consecutive IMU slots refused as running backwards (a forged reference?)
         self._seen = 0.0  # monotonic time of the live stream's last message
+        self._heard = 0.0  # monotonic time of the last message received live (not fetched by a backfill)
+        self._filling = False  # messages fetched by a backfill are being pushed
         self._resume: tuple[dict, int, int] | None = None
         self._busy = False  # a message is being handled (its consumer may wait, releasing the lock: lockstep)
         self._retry_in = 0
@@ -157,6 +159,8 @@ class StreamFollower:
     def on_message(self, key: str, msg: dict) -> None:
         """A validated message of a sensor key (stream_start, imu, imu_batch, gnss, stream_end)."""
         src = msg["src"]
+        if not self._filling:
+            self._heard = time.monotonic()
         if self._resume is not None:
             if src == self._resume[0]["src"]:
                 self._activate()
@@ -264,8 +268,18 @@ class StreamFollower:
                              m.next + gone - 1)
             m.skip_to(m.next + gone, self._release)
             self.on_flush()
-        for key, msg in got:
-            self.on_message(key, msg)
+        self._filling = True
+        try:
+            for key, msg in got:
+                self.on_message(key, msg)
+        finally:
+            self._filling = False
+
+    def quiet(self, after_s: float) -> bool:
+        """Whether a started stream, not done, has received nothing live for after_s [s] (it ended or paused while
+        this consumer was away: Backfill goes on through the history)."""
+        return (self.merger is not None and not self.done and not self._busy and self._resume is None
+                and time.monotonic() - self._heard >= after_s)
 
     def resume(self, start: dict, next_cseq: int, t_ref_ns: int) -> None:
         """Resume the stream of ``start`` at next_cseq (a checkpoint: the samples before it were handled, the last
@@ -386,7 +400,9 @@ class Backfill:
     validated (key, message) pairs, None when nobody answered) and pushed into the merge
     (StreamFollower.backfill); each chunk holds the merge's timeout for the hole from its start
     (StreamFollower.hold). A hole nobody answered for (no ingest history) is not fetched again: the merge's
-    timeout skips it as a gap. Counted in the stream status: backfilled, backfill_empty, backfill_failed.
+    timeout skips it as a gap. After a full chunk with nothing live behind it, a stream quiet for after_s (it went on,
+    or ended, while this consumer was away) is followed on through the history to its end (StreamFollower.quiet).
+    Counted in the stream status: backfilled, backfill_empty, backfill_failed.
     Not for a consumer whose sample handling waits releasing the lock (the ins's --lockstep): fetched samples
     pushed while one is being handled would enter the merge in the middle of its release."""
 
@@ -415,6 +431,10 @@ class Backfill:
                 if got is None and hole[1] < RESUME_END:
                     self._unanswered = first
                 hole = self._next(0.0) if got is not None else None
+                if hole is None and got and _reach(got) >= last and self.follower.quiet(self.after_s):
+                    # a full chunk and nothing live behind it: the stream went on (or ended) while this consumer
+                    # was away and is quiet now: on through the history, up to its end (its stream_end included)
+                    hole = (last + 1, RESUME_END)
             if got is None or (hole is not None and hole[0] <= first):  # no answer or no progress: wait after_s
                 self._idle_until, hole = time.monotonic() + self.after_s, None
 
@@ -425,6 +445,11 @@ class Backfill:
             return None
         self.follower.hold()
         return hole
+
+
+def _reach(got: list) -> int:
+    """The last cseq the fetched messages cover (an imu_batch covers one per sample)."""
+    return max(m["cseq"] + (len(m["t_ns_list"]) - 1 if m["schema"] == "imu_batch" else 0) for _, m in got)
 
 
 def start_ticker(follower: StreamFollower, lock, stopping: Callable[[], bool], period_s: float = 0.25,

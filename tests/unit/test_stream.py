@@ -263,11 +263,11 @@ class _Loopback:
         self.rejected.append(reason)
 
 
-def _restarted_ins(tmp_path, history_size: int, dead: int):
+def _restarted_ins(tmp_path, history_size: int, dead: int | None):
     """An ins checkpointing every 5 s of data, killed after 20 s of a 40 s stream; the ingest kept its last
-    history_size messages; the restarted ins gets the live stream again only ``dead`` messages after the kill and
-    backfills the rest from the ingest's history (zennav.stream.Backfill). Returns (restarted ins, its solutions
-    by time, the messages, the dataset)."""
+    history_size messages; the restarted ins gets the live stream again only ``dead`` messages after the kill
+    (None: never, the stream ended while it was down) and backfills the rest from the ingest's history
+    (zennav.stream.Backfill). Returns (restarted ins, its solutions by time, the messages, the dataset)."""
     import threading
 
     from zennav.checkpoint import Checkpointer
@@ -292,6 +292,9 @@ def _restarted_ins(tmp_path, history_size: int, dead: int):
     backfill = Backfill(second.follower, lambda a, b: fetch_history(bus, K.sensor_history(), a, b), after_s=0.0)
     lock, never = threading.RLock(), lambda: False
     backfill.run(lock, never)  # restarted, before the stream goes on: the history's next samples, if it has them
+    if dead is None:
+        assert not bus.rejected
+        return second, sols, msgs, ds
     for key, m in msgs[cut + dead:cut + dead + 100]:  # the live stream again: held behind the dead window
         second.on_sensor(key, m)
     backfill.run(lock, never)
@@ -308,6 +311,21 @@ def test_restarted_ins_backfills_the_dead_window_from_the_ingest_history(tmp_pat
     st = second.follower.status()
     assert second.recovery["resumed"] == 1 and st["done"] and not st.get("gap") and not st.get("backfill_empty")
     assert st["backfilled"] >= 3000 and second.imu_count == msgs[-1][1]["counts"]["imu"]
+    ref = run_replay(ds)
+    t = sorted(sols)
+    keep = ref.t_ns >= t[0]
+    assert np.array_equal(t, ref.t_ns[keep])
+    assert np.array_equal(np.array([sols[x]["llh"] for x in t]), ref.llh[keep])
+
+
+def test_restarted_after_the_stream_ended_reaches_its_end_from_the_history(tmp_path):
+    """The stream ended while the ins was down (a drained ingest faster than its notice of the kill): nothing live
+    comes again, yet the restarted ins goes on through the ingest's history chunk by chunk to its stream_end
+    (before, it stopped after the first chunk and waited for ever) and navigates every sample as the replay."""
+    second, sols, msgs, ds = _restarted_ins(tmp_path, 20000, None)
+    st = second.follower.status()
+    assert second.recovery["resumed"] == 1 and st["done"] and not st.get("gap") and not st.get("duplicate"), st
+    assert second.imu_count == msgs[-1][1]["counts"]["imu"]
     ref = run_replay(ds)
     t = sorted(sols)
     keep = ref.t_ns >= t[0]
