@@ -44,7 +44,10 @@ def test_hijack_and_stalling_samples_are_refused_and_cost_nothing(cluster):
     for i in range(1, 401):
         pub_imu.put(M.imu_msg(t + i * 5_000_000, [0.0, 0.0, 0.1], [9.0, 0.0, 0.0], 5_000_000, i))
     # the stalling samples, on the live source (put_raw: the ingest's src stays)
-    last = [m for m in imu.msgs() if m["src"] == start["src"]][-1]  # (the collector sees our own too)
+    # a sample the ins has consumed for certain (the collector's newest may still be in the ins's queue, where the
+    # forged copy could come first: refused then as time_jump, not duplicate)
+    used = sols.wait(lambda c: c.msgs()[-1]["imu_cseq"] if c.msgs() else None, 60, "a solution")
+    last = [m for m in imu.msgs() if m["src"] == start["src"] and m["cseq"] <= used][-1]
     forged = [dict(last, t_ns=last["t_ns"] + 1_000_000_000),  # a used cseq, 1 s ahead
               dict(last, cseq=last["cseq"] + 2000, t_ns=last["t_ns"] + 1000 * 10**9),  # a slot to come, far ahead
               dict(last, cseq=last["cseq"] + 10**7, t_ns=last["t_ns"] + 2 * 10**9)]  # a cseq far ahead
