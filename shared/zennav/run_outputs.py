@@ -38,7 +38,8 @@ KF_GINS_IMU_ERR, KF_GINS_STD = "KF_GINS_IMU_ERR.txt", "KF_GINS_STD.txt"
 # the columns of RunRecorder.states (SI): biases, scale factors, then the 1-sigma of position, velocity, attitude
 # error and of the same IMU errors
 S_BG, S_BA, S_SCALE = slice(0, 3), slice(3, 6), slice(6, 12)
-S_STD_PVA, S_STD_BG, S_STD_BA, S_STD_SCALE = slice(12, 21), slice(21, 24), slice(24, 27), slice(27, 33)
+S_STD_PV, S_STD_ATT, S_STD_BG, S_STD_BA, S_STD_SCALE = (slice(12, 18), slice(18, 21), slice(21, 24), slice(24, 27),
+                                                          slice(27, 33))
 
 
 class RunRecorder:
@@ -113,18 +114,22 @@ class RunRecorder:
                             f"{tr:.4g}" if math.isfinite(tr) else "", *obs, *inn])
         header = ("t_s,bg_x_dph,bg_y_dph,bg_z_dph,bg_std_x_dph,bg_std_y_dph,bg_std_z_dph,ba_x_mg,ba_y_mg,ba_z_mg,"
                   "ba_std_x_mg,ba_std_y_mg,ba_std_z_mg")
-        x = np.array(self.states).reshape(-1, 33)
-        t_s = (np.array(self.times, dtype=np.int64) - self.t0_ns) / NS
+        t_ns, x = self._table()
+        t_s = (t_ns - self.t0_ns) / NS
         biases = np.column_stack([t_s, x[:, S_BG] * DEG_PER_H, x[:, S_STD_BG] * DEG_PER_H, x[:, S_BA] * MG,
                                   x[:, S_STD_BA] * MG])
         np.savetxt(out / "biases.csv", biases, delimiter=",", header=header, comments="", fmt="%.6g")
 
+    def _table(self) -> tuple[np.ndarray, np.ndarray]:
+        """The times [ns] (N,) and the rows (N, 33: columns S_*) collected."""
+        return np.array(self.times, dtype=np.int64), np.array(self.states).reshape(-1, 33)
+
     def write_kf_gins(self, out: Path, week: int) -> None:
         """KF_GINS_IMU_ERR.txt and KF_GINS_STD.txt in out (module docstring), times in seconds of GPS week week."""
-        x = np.array(self.states).reshape(-1, 33)
-        sow = (np.array(self.times, dtype=np.int64) - week * WEEK_NS) / NS
+        t_ns, x = self._table()
+        sow = (t_ns - week * WEEK_NS) / NS
         err = np.column_stack([sow, x[:, S_BG] * DEG_PER_H, x[:, S_BA] * MGAL, x[:, S_SCALE] * PPM])
-        std = np.column_stack([sow, x[:, S_STD_PVA][:, :6], np.degrees(x[:, S_STD_PVA][:, 6:]),
+        std = np.column_stack([sow, x[:, S_STD_PV], np.degrees(x[:, S_STD_ATT]),
                                x[:, S_STD_BG] * DEG_PER_H, x[:, S_STD_BA] * MGAL, x[:, S_STD_SCALE] * PPM])
         for name, table in ((KF_GINS_IMU_ERR, err), (KF_GINS_STD, std)):
             # KF-GINS's FileSaver: "%-15.9lf " per value

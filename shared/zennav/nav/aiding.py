@@ -16,18 +16,15 @@ import math
 
 import numpy as np
 
-from . import earth
+from . import earth, kernels
 from .eskf import ATT, N_STATES, VEL
 from .rotation import skew
 from .strapdown import NavState
 
 
 def _dcm(s: NavState) -> tuple:
-    """The nine elements of C_nb, row by row, as Python floats (zennav.nav.rotation.quat_to_dcm's products)."""
-    q0, q1, q2, q3 = s.q0, s.q1, s.q2, s.q3
-    return (q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2),
-            2 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2 * (q2 * q3 - q0 * q1),
-            2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
+    """The nine elements of C_nb, row by row, as Python floats (zennav.nav.kernels.quat_dcm)."""
+    return tuple(kernels.quat_dcm(s.q0, s.q1, s.q2, s.q3).ravel().tolist())
 
 
 def _lever_terms(s: NavState, lever_b, omega_ib_b) -> tuple:
