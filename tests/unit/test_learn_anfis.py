@@ -16,6 +16,7 @@ from zennav.learn.anfis_torch import (  # noqa: E402
     epoch_stepper,
     fit_anfis,
     fit_anfis_sigma,
+    select_epochs,
     train,
 )
 from zennav.learn.lse import ridge_lstsq  # noqa: E402
@@ -220,6 +221,48 @@ def test_sigma_is_the_held_out_error_when_the_fit_interpolates():
     assert np.mean(fit.metrics["sigma"]) > 1.2 * np.mean(fit.metrics["train_rmse"])
     with pytest.raises(ValueError):
         fit_anfis_sigma(x[:1], y[:1], max_rules=1, config=cfg)
+
+
+def test_early_stopping_keeps_the_best_validation_epoch():
+    """val_patience: training stops that many epochs after the lowest validation RMSE and keeps that epoch's model;
+    many rules on few noisy samples overfit, so it stops before max_epochs."""
+    rng = np.random.default_rng(11)
+    x = rng.uniform(-2.0, 2.0, size=(160, 3))
+    y = np.sin(x[:, 0]) + x[:, 1] * x[:, 2] + rng.normal(0.0, 0.5, 160)
+    xn, yn = (x - x.mean(0)) / x.std(0), (y - y.mean()) / y.std()
+    cfg = TrainConfig(max_epochs=40, tol=0.0, val_patience=3)
+    model = TorchAnfis(an.cluster_rulebase(xn[:100], 8, seed=0), n_out=1)
+    res = train(model, xn[:100], yn[:100], cfg, xn[100:], yn[100:])
+    val = [h["val_rmse"] for h in res.history]
+    assert res.stop_reason == "val" and res.epochs == res.best_epoch + 3 < 40
+    assert res.best_epoch == int(np.argmin(val)) > 0
+    with torch.no_grad():
+        kept = torch.sqrt(((model.forward(xn[100:]) - model.tensor(yn[100:, None])) ** 2).mean())
+    assert float(kept) == pytest.approx(min(val), rel=1e-12)
+    assert min(val) < val[-1]  # it went on past the best and came back to it
+    plain = train(TorchAnfis(an.cluster_rulebase(xn[:100], 8, seed=0), n_out=1), xn[:100], yn[:100],
+                  TrainConfig(max_epochs=res.epochs, tol=0.0), xn[100:], yn[100:])
+    assert plain.best_epoch is None and [h["val_rmse"] for h in plain.history] == pytest.approx(val, rel=1e-12)
+
+
+def test_fit_anfis_sigma_chooses_its_epochs_without_the_held_out_rows():
+    """With val_patience the epochs of both fits are select_epochs' choice on the oldest three quarters only; a
+    target with nothing to learn (noise) chooses epoch 0, the initial model: the target's mean answers it. The
+    improved swarm (ipso), whose schedule spans max_epochs, always runs max_epochs."""
+    rng = np.random.default_rng(12)
+    x = rng.uniform(-2.0, 2.0, size=(400, 3))
+    y = np.stack([np.sin(x[:, 0]) + x[:, 1], rng.normal(0.0, 1.0, 400)], axis=1)
+    cfg = TrainConfig(max_epochs=30, val_patience=3)
+    fit = fit_anfis_sigma(x, y, max_rules=6, config=cfg, device="cpu")
+    chosen, ran = select_epochs(x[:300], y[:300], max_rules=6, config=cfg, holdout=0.25)
+    assert fit.metrics["epochs"] == chosen and fit.metrics["probe_epochs"] == ran == chosen + 3
+    assert 0 < chosen < 30 and fit.metrics["skill"] == [1, 0]
+    noise = fit_anfis_sigma(x, y[:, 1], max_rules=6, config=cfg, device="cpu")
+    assert noise.metrics["epochs"] == 0 and noise.metrics["skill"] == [0]
+    np.testing.assert_allclose(an.predict(noise.arrays, noise.norm, x)[:, 0], y[:, 1].mean(), rtol=1e-12)
+    swarm = fit_anfis_sigma(x, y, max_rules=6, device="cpu", config=TrainConfig(
+        method="ipso", max_epochs=3, val_patience=3, pso=PSOConfig(n_particles=4)))
+    assert swarm.metrics["epochs"] == 3 and "probe_epochs" not in swarm.metrics
 
 
 def test_answer_sigma_inflates_correlated_residuals_by_the_ar1_factor():

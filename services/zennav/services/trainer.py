@@ -79,6 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-rules", type=int, default=d.n_rules, help="ANFIS rules (k-means rule base)")
     p.add_argument("--max-epochs", type=int, default=d.max_epochs, help="ANFIS epochs per fit (LSE + FR-CG, or swarm "
                    "iterations)")
+    p.add_argument("--val-patience", type=int, default=d.val_patience,
+                   help="ANFIS epochs chosen by early stopping on a validation split, this many epochs past the best "
+                        "(0: --max-epochs always)")
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--device", default=None, help="torch device (default: cuda when torch sees one, else cpu)")
     p.add_argument("--torch-threads", type=int, default=d.torch_threads,
@@ -103,8 +106,8 @@ def main(argv=None) -> int:
     try:
         settings = LearnSettings(model=args.model, optimizer=args.optimizer, window=args.window,
                                  min_samples=args.min_samples, retrain_samples=args.retrain_samples,
-                                 n_rules=args.n_rules, max_epochs=args.max_epochs, seed=args.seed,
-                                 torch_threads=args.torch_threads)
+                                 n_rules=args.n_rules, max_epochs=args.max_epochs, val_patience=args.val_patience,
+                                 seed=args.seed, torch_threads=args.torch_threads)
         signer = None if args.unsigned else Signer.from_file(args.signing_key) if args.signing_key else None
         versions = VersionFile(args.state_dir) if args.state_dir else None
     except (ValueError, OSError) as e:

@@ -118,6 +118,8 @@ class TrainConfig:
     goal_rmse: float = 0.0  # stop once the training RMSE is <= goal_rmse
     tol: float = 1e-4  # ... or once the best training RMSE improved by < tol (relative) for `patience` epochs
     patience: int = 3
+    val_patience: int = 0  # with a validation set: stop once its RMSE has not improved for this many epochs and
+    # keep the best epoch's model (early stopping; 0: off)
     ridge: float = 1e-8  # Tikhonov weight per sample in the least-squares step
     cg_iters: int = 20  # FR-CG iterations on the premises per hybrid epoch
     cg_projected: bool = True  # hybrid_cg: LSE consequents at every CG evaluation (variable projection) ...
@@ -139,7 +141,8 @@ class TrainConfig:
 @dataclass
 class TrainResult:
     history: list[dict]  # per epoch (0 = start): epoch, rmse, val_rmse (None without validation), wall_s
-    stop_reason: str  # "goal", "tol" or "max_epochs"
+    stop_reason: str  # "goal", "tol", "val" (early stopping) or "max_epochs"
+    best_epoch: int | None = None  # with val_patience: the epoch of the lowest validation RMSE, the model kept
 
     @property
     def epochs(self) -> int:
@@ -212,9 +215,17 @@ def train(model: TorchAnfis, x, y, config: TrainConfig = TrainConfig(), x_val=No
         return rmse
 
     best, stale, stop = record(0), 0, "max_epochs"
+    early = config.val_patience > 0 and val is not None
+    best_epoch, kept = 0, (model.p.clone(), model.theta.clone())
     for epoch in range(1, config.max_epochs + 1):
         epoch_fn()
         rmse = record(epoch)
+        if early:
+            if history[-1]["val_rmse"] < history[best_epoch]["val_rmse"]:
+                best_epoch, kept = epoch, (model.p.clone(), model.theta.clone())
+            elif epoch - best_epoch >= config.val_patience:
+                stop = "val"
+                break
         if rmse <= config.goal_rmse:
             stop = "goal"
             break
@@ -223,7 +234,10 @@ def train(model: TorchAnfis, x, y, config: TrainConfig = TrainConfig(), x_val=No
         if stale >= config.patience:
             stop = "tol"
             break
-    return TrainResult(history, stop)
+    if not early:
+        return TrainResult(history, stop)
+    model.p, model.theta = kept
+    return TrainResult(history, stop, best_epoch)
 
 
 def _hybrid_cg(model, x, y, cfg):
@@ -355,15 +369,17 @@ def fit_anfis(x, y, *, n_rules: int | None = None, n_mf: int | None = None, conf
 def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig(), holdout: float = 0.25,
                     t_ns=None, answer_period_s: float = 0.0, device=None, minmax=()) -> FitResult:
     """fit_anfis with a k-means rule base on all of x, y (rows in time order, newest last) plus the 1-sigma of its
-    answers. Rules: max_rules, fewer while samples are few: at most one consequent parameter per 4 samples per
-    output (n_rules * (n_in + 1) <= N / 4), so that the fit does not interpolate its samples. Validation: a first
-    fit on the oldest (1 - holdout) predicts the newest holdout. Per output, the model with the lower held-out RMS
-    of two answers it: the ANFIS or the intercept-only model (the mean of the target; model selection by the
-    validation error, Hastie, Tibshirani and Friedman, "The Elements of Statistical Learning", 2nd ed., 2009, sec.
-    7.2): an output whose ANFIS has no skill over its mean is answered by the mean (its consequents zero in
-    normalised units), so that a model that does not know an output does not answer it with a prediction worse
-    than the trivial one; metrics["skill"] (per output, 1: the ANFIS answers it). 1-sigma: metrics["sigma"] (per
-    output, physical units) is zennav.learn.sigma.answer_sigma of the chosen model's held-out residuals (their RMS
+    answers. Rules: rule_count of all the rows (max_rules, fewer while samples are few), so that the fit does not
+    interpolate its samples. Validation: a first fit on the oldest (1 - holdout) predicts the newest holdout.
+    Epochs: with config.val_patience > 0 (and a method of EPOCH_SELECTABLE), the number select_epochs chooses on
+    the oldest (1 - holdout) alone (the held-out rows stay unseen), for both fits (metrics["probe_epochs"]: the
+    epochs that choice ran); else config.max_epochs. Per output, the model with the lower held-out RMS of two
+    answers it: the ANFIS or the intercept-only model (the mean of the target; model selection by the validation
+    error, Hastie, Tibshirani and Friedman, "The Elements of Statistical Learning", 2nd ed., 2009, sec. 7.2): an
+    output whose ANFIS has no skill over its mean is answered by the mean (its consequents zero in normalised
+    units), so that a model that does not know an output does not answer it with a prediction worse than the
+    trivial one; metrics["skill"] (per output, 1: the ANFIS answers it). 1-sigma: metrics["sigma"] (per output,
+    physical units) is zennav.learn.sigma.answer_sigma of the chosen model's held-out residuals (their RMS
     inflated for their correlation one answer apart: answer_period_s over the held-out rows' spacing in t_ns,
     sample times [ns]; no t_ns: the next row), at least the final model's training RMSE; metrics["holdout_rmse"]
     (the ANFIS's), ["baseline_rmse"] (the mean's) and ["holdout_rho"] keep the parts. minmax: as in fit_anfis."""
@@ -371,7 +387,12 @@ def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig()
     n = int(round(len(x) * (1.0 - holdout)))
     if not 0 < n < len(x):
         raise ValueError(f"holdout {holdout} leaves no training or no held-out row of {len(x)}")
-    n_rules = max(1, min(max_rules, len(x) // (4 * (x.shape[1] + 1))))
+    n_rules = rule_count(len(x), x.shape[1], max_rules)
+    probe_epochs = None
+    if config.val_patience > 0 and config.method in EPOCH_SELECTABLE:
+        epochs, probe_epochs = select_epochs(x[:n], y[:n], max_rules=max_rules, config=config, holdout=holdout,
+                                             device=device, minmax=minmax)
+        config = replace(config, max_epochs=epochs, val_patience=0)
     first = fit_anfis(x[:n], y[:n], n_rules=n_rules, config=config, device=device, minmax=minmax)
     residuals = anfis_numpy.predict(first.arrays, first.norm, x[n:]) - y[n:]
     baseline = y[:n].mean(axis=0) - y[n:]
@@ -388,7 +409,37 @@ def fit_anfis_sigma(x, y, *, max_rules: int, config: TrainConfig = TrainConfig()
     fit.metrics["holdout_rho"] = rho.tolist()
     fit.metrics["skill"] = skill.astype(int).tolist()
     fit.metrics["sigma"] = np.maximum(sigma, train_rmse).tolist()
+    if probe_epochs is not None:
+        fit.metrics["probe_epochs"] = probe_epochs
     return fit
+
+
+# the methods whose model after epoch k does not depend on max_epochs (the improved swarm's schedule spans them)
+EPOCH_SELECTABLE = ("hybrid_cg", "hybrid_gd", "adam", "pso")
+
+
+def rule_count(n_rows: int, n_in: int, max_rules: int) -> int:
+    """Rules of a fit on n_rows samples of n_in inputs: max_rules, fewer while samples are few (at most one
+    consequent parameter per 4 samples per output, n_rules * (n_in + 1) <= n_rows / 4), at least one."""
+    return max(1, min(max_rules, n_rows // (4 * (n_in + 1))))
+
+
+def select_epochs(x, y, *, max_rules: int, config: TrainConfig, holdout: float, device=None,
+                  minmax=()) -> tuple[int, int]:
+    """The number of epochs to train on x, y (rows in time order) by early stopping: a fit on the oldest
+    (1 - holdout), its rules by rule_count of those rows, validated on the newest holdout stops
+    config.val_patience epochs after its lowest validation RMSE; that epoch (0: the initial model, which answers
+    the target's mean) is the choice, and a fit on more of the same data then runs as many (L. Prechelt, "Early
+    stopping - but when?", in "Neural Networks: Tricks of the Trade", 1998; I. Goodfellow, Y. Bengio, A.
+    Courville, "Deep Learning", 2016, sec. 7.8, algorithm 7.2). Returns (chosen epochs, epochs the probe ran);
+    (config.max_epochs, 0) where the split leaves no rows."""
+    m = int(round(len(x) * (1.0 - holdout)))
+    if not 0 < m < len(x):
+        return config.max_epochs, 0
+    probe = fit_anfis(x[:m], y[:m], n_rules=rule_count(m, x.shape[1], max_rules), config=config, x_val=x[m:],
+                      y_val=y[m:], device=device, minmax=minmax)
+    assert probe.train.best_epoch is not None  # val_patience > 0 with a validation set
+    return probe.train.best_epoch, probe.train.epochs
 
 
 def _as_xy(x, y) -> tuple[np.ndarray, np.ndarray]:

@@ -15,7 +15,9 @@ Models (settings.model):
   6(1) 2002; the seed gives the PSO update but no coefficient values) or the improved swarm (optimizer ipso, seed
   003 step 3.3: zennav.learn.pso.IMPROVED). Inputs are z-scored, those of MINMAX_FEATURES min-max scaled.
   1-sigma: the residuals on the newest quarter of the samples of a fit on the rest (zennav.learn.sigma); an output
-  whose ANFIS predicts that quarter no better than the target's mean is answered by the mean (metrics skill). torch is
+  whose ANFIS predicts that quarter no better than the target's mean is answered by the mean (metrics skill). Epochs
+  (cg, pso): chosen by early stopping within the other three quarters (settings.val_patience;
+  zennav.learn.anfis_torch.select_epochs), at most max_epochs. torch is
   imported only inside the fit, or not at all with a ``fitter`` (the trainer's zennav.learn.fit_worker.FitWorker:
   the same fit in a child process).
 - elman (seed 002): ElmanOnline learns every sample in order; its set at n is its state after n samples (weights,
@@ -257,7 +259,8 @@ class Learner:
             fit = (self.fitter or self._fit_here)(
                 x, y, max_rules=self.s.n_rules, device=self.device, t_ns=t_ns,
                 answer_period_s=ANSWER_PERIOD_S[self.target],
-                config={"method": self.s.method, "max_epochs": self.s.max_epochs, "seed": self.s.seed}, **minmax)
+                config={"method": self.s.method, "max_epochs": self.s.max_epochs,
+                        "val_patience": self.s.val_patience, "seed": self.s.seed}, **minmax)
         except Exception as e:  # a degenerate window must not stop the learner: no set, counted, reason kept
             self.counts["fit_errors"] += 1
             self.last_error = f"{type(e).__name__}: {e}"[:300]

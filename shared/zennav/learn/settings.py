@@ -30,11 +30,14 @@ COMPENSATIONS = {"anfis": ("anfis", "cg"), "anfis-pso": ("anfis", "pso"), "anfis
 class LearnSettings:
     """Settings of one learner (one target variant). window / min_samples None: the model's default (WINDOW,
     MIN_SAMPLES). retrain_samples: samples between two scheduled fits. n_rules, max_epochs: ANFIS rules (fewer
-    while samples are few) and epochs per fit (one LSE + FR-CG pass, or one swarm iteration). n_hidden, threshold,
-    free_run_s: the Elman's hidden units, training RMSE (normalised) under which it publishes, and period [s of
-    sample time] of its free-running copies (its 1-sigma). max_domain_excess: queries further than this many
-    training standard deviations outside the training range are refused. torch_threads: torch's threads during
-    a fit (1: the fit is the same, bit for bit, wherever it runs on a CPU; 0: torch's default)."""
+    while samples are few) and most epochs per fit (one LSE + FR-CG pass, or one swarm iteration); val_patience:
+    the epochs are chosen by early stopping on a validation split, val_patience epochs past the best (0:
+    max_epochs always; zennav.learn.anfis_torch.select_epochs; not for the ipso schedule, which spans max_epochs).
+    n_hidden, threshold, free_run_s: the Elman's hidden units, training RMSE (normalised) under which it
+    publishes, and period [s of sample time] of its free-running copies (its 1-sigma). max_domain_excess: queries
+    further than this many training standard deviations outside the training range are refused. torch_threads:
+    torch's threads during a fit (1: the fit is the same, bit for bit, wherever it runs on a CPU; 0: torch's
+    default)."""
 
     model: str = "anfis"
     optimizer: str = "cg"
@@ -43,6 +46,7 @@ class LearnSettings:
     retrain_samples: int = 1000
     n_rules: int = 8
     max_epochs: int = 30
+    val_patience: int = 3
     n_hidden: int = 12
     threshold: float = 0.8
     free_run_s: float = 30.0
