@@ -248,7 +248,7 @@ def test_early_stopping_keeps_the_best_validation_epoch():
 def test_fit_anfis_sigma_chooses_its_epochs_without_the_held_out_rows():
     """With val_patience the epochs of both fits are select_epochs' choice on the oldest three quarters only; a
     target with nothing to learn (noise) chooses epoch 0, the initial model: the target's mean answers it. The
-    improved swarm (ipso), whose schedule spans max_epochs, always runs max_epochs."""
+    swarms always run max_epochs."""
     rng = np.random.default_rng(12)
     x = rng.uniform(-2.0, 2.0, size=(400, 3))
     y = np.stack([np.sin(x[:, 0]) + x[:, 1], rng.normal(0.0, 1.0, 400)], axis=1)
@@ -260,9 +260,10 @@ def test_fit_anfis_sigma_chooses_its_epochs_without_the_held_out_rows():
     noise = fit_anfis_sigma(x, y[:, 1], max_rules=6, config=cfg, device="cpu")
     assert noise.metrics["epochs"] == 0 and noise.metrics["skill"] == [0]
     np.testing.assert_allclose(an.predict(noise.arrays, noise.norm, x)[:, 0], y[:, 1].mean(), rtol=1e-12)
-    swarm = fit_anfis_sigma(x, y, max_rules=6, device="cpu", config=TrainConfig(
-        method="ipso", max_epochs=3, val_patience=3, pso=PSOConfig(n_particles=4)))
-    assert swarm.metrics["epochs"] == 3 and "probe_epochs" not in swarm.metrics
+    for method in ("pso", "ipso"):
+        swarm = fit_anfis_sigma(x, y, max_rules=6, device="cpu", config=TrainConfig(
+            method=method, max_epochs=3, val_patience=3, pso=PSOConfig(n_particles=4)))
+        assert swarm.metrics["epochs"] == 3 and "probe_epochs" not in swarm.metrics
 
 
 def test_answer_sigma_inflates_correlated_residuals_by_the_ar1_factor():

@@ -80,8 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-epochs", type=int, default=d.max_epochs, help="ANFIS epochs per fit (LSE + FR-CG, or swarm "
                    "iterations)")
     p.add_argument("--val-patience", type=int, default=d.val_patience,
-                   help="ANFIS epochs chosen by early stopping on a validation split, this many epochs past the best "
-                        "(0: --max-epochs always)")
+                   help="ANFIS epochs (--optimizer cg) chosen by early stopping on a validation split, this many "
+                        "epochs past the best (0: --max-epochs always)")
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--device", default=None, help="torch device (default: cuda when torch sees one, else cpu)")
     p.add_argument("--torch-threads", type=int, default=d.torch_threads,

@@ -16,7 +16,7 @@ Models (settings.model):
   003 step 3.3: zennav.learn.pso.IMPROVED). Inputs are z-scored, those of MINMAX_FEATURES min-max scaled.
   1-sigma: the residuals on the newest quarter of the samples of a fit on the rest (zennav.learn.sigma); an output
   whose ANFIS predicts that quarter no better than the target's mean is answered by the mean (metrics skill). Epochs
-  (cg, pso): chosen by early stopping within the other three quarters (settings.val_patience;
+  (cg): chosen by early stopping within the other three quarters (settings.val_patience;
   zennav.learn.anfis_torch.select_epochs), at most max_epochs. torch is
   imported only inside the fit, or not at all with a ``fitter`` (the trainer's zennav.learn.fit_worker.FitWorker:
   the same fit in a child process).

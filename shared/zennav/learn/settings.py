@@ -32,7 +32,7 @@ class LearnSettings:
     MIN_SAMPLES). retrain_samples: samples between two scheduled fits. n_rules, max_epochs: ANFIS rules (fewer
     while samples are few) and most epochs per fit (one LSE + FR-CG pass, or one swarm iteration); val_patience:
     the epochs are chosen by early stopping on a validation split, val_patience epochs past the best (0:
-    max_epochs always; zennav.learn.anfis_torch.select_epochs; not for the ipso schedule, which spans max_epochs).
+    max_epochs always; zennav.learn.anfis_torch.select_epochs; the cg optimizer only, not the swarms).
     n_hidden, threshold, free_run_s: the Elman's hidden units, training RMSE (normalised) under which it
     publishes, and period [s of sample time] of its free-running copies (its 1-sigma). max_domain_excess: queries
     further than this many training standard deviations outside the training range are refused. torch_threads:
