@@ -19,7 +19,7 @@
   the files; CPU: the process's, all threads), and the reads in the reader thread beside them (the rest of the IMU
   file, the truth: wall and that thread's CPU).
 
-    .venv/bin/python benchmarks/core_speed.py [--minutes 30] [--repeats 3] [--learn-minutes 5] [--kf-gins PATH]
+    .venv/bin/python benchmarks/core_speed.py [--minutes 30] [--repeats 3] [--learn-minutes 30] [--kf-gins PATH]
         [--baseline OTHER/.venv/bin/zennav] [--profile loop|command|stages]
 """
 from __future__ import annotations
@@ -175,7 +175,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--minutes", type=float, default=30.0)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--learn-minutes", type=float, default=5.0, help="drive of the learning runs (0: skip)")
+    ap.add_argument("--learn-minutes", type=float, default=30.0,
+                    help="drive of the learning runs (0: skip; 30: the issue's 30-min drive)")
     ap.add_argument("--pyins-minutes", type=float, default=2.0, help="pyins's share of the drive (0: skip)")
     ap.add_argument("--kf-gins", type=Path, default=None, help="a KF-GINS binary to run on the same files")
     ap.add_argument("--baseline", type=Path, default=None,

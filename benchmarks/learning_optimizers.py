@@ -161,7 +161,7 @@ def run_zennav(method, rb, x_tr, y_tr, x_va, y_va, seed, max_epochs, budget_s, o
 
 def run_toolbox(rb, x_tr, y_tr, x_va, y_va, seed, max_epochs, budget_s, lr) -> Run:
     """anfis-toolbox HybridTrainer, one single-output TSKANFIS per output, from the same rule base."""
-    from anfis_toolbox.membership import BellMF
+    from anfis_toolbox.membership import BellMF, MembershipFunction
     from anfis_toolbox.model import TSKANFIS
     from anfis_toolbox.optim import HybridTrainer
 
@@ -170,8 +170,8 @@ def run_toolbox(rb, x_tr, y_tr, x_va, y_va, seed, max_epochs, budget_s, lr) -> R
     rules = [tuple(int(i) for i in r) for r in rb["rules"]]
     models = []
     for _ in range(y_tr.shape[1]):
-        mfs = {f"x{j}": [BellMF(rb["a"][j, m], rb["b"][j, m], rb["c"][j, m]) for m in range(n_mf)]
-               for j in range(n_in)}
+        mfs: dict[str, list[MembershipFunction]] = {
+            f"x{j}": [BellMF(rb["a"][j, m], rb["b"][j, m], rb["c"][j, m]) for m in range(n_mf)] for j in range(n_in)}
         m = TSKANFIS(mfs, rules=rules)
         m.consequent_layer.parameters = np.zeros_like(m.consequent_layer.parameters)  # it starts random
         models.append(m)

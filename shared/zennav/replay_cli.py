@@ -95,7 +95,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     if compensation != "none":  # the learning loop (its modules) only when asked for: start-up time
         from .learn.loop import make_compensator
 
-        compensator = make_compensator(compensation, target, seed)
+        compensator = make_compensator(compensation, target, seed, fit_worker=True)
     try:  # a long IMU file is read while the run starts (zennav.datasets.streamed): its defects show here
         res = run_replay(ds, outages=list(outages), outage_every=every, compensator=compensator, on_epoch=on_epoch,
                          smoothing=smooth, epoch_due=recorder.due_ns)
@@ -122,7 +122,8 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
     metrics["compensation"] = {"model": compensation, "target": target if learned else None,
                                "seed": seed if learned else None}
     if compensator is not None:
-        metrics["compensation"]["counters"] = compensator.status()
+        metrics["compensation"]["counters"] = compensator.status()  # (the last fits, if any are due)
+        compensator.close()
     if res.smoothed is not None:
         metrics["smoothed"] = evaluate(ds, res.smoothed)
         metrics["smoothed"].pop("engine")

@@ -7,8 +7,9 @@ sets are the same bit for bit.
 ``FitWorker(torch_threads)`` is a callable with fit_anfis_sigma's signature, config given as TrainConfig's
 fields (zennav.learn.learner.Learner's ``fitter``); it returns a ``Fit`` (arrays, norm, metrics: plain numpy and
 Python values) or raises RuntimeError (the fit's own error, or the worker gone). One fit at a time; the worker
-(spawned, not forked: torch and zenoh threads must not be forked) starts on first use and dies with the trainer
-(zennav.pdeath, SIGKILL).
+(spawned, not forked: torch and zenoh threads must not be forked) starts on first use, or at ``start()``, and dies
+with the trainer (zennav.pdeath, SIGKILL). ``zennav replay --compensation anfis`` starts one with the run, so that
+torch's import (about 1.4 s of CPU) runs on another core while the replay loads and navigates up to its first fit.
 """
 from __future__ import annotations
 
@@ -63,17 +64,26 @@ class FitWorker:
         self._conn: Any = None
         self._closed = False
 
+    def start(self) -> FitWorker:
+        """Spawn the worker now, so that it imports torch while the caller goes on (else on first use)."""
+        with self._lock:
+            self._spawn()
+        return self
+
+    def _spawn(self) -> None:
+        if self._closed:
+            raise RuntimeError("fit worker stopped")
+        if self._proc is None:
+            ctx = multiprocessing.get_context("spawn")
+            self._conn, child = ctx.Pipe()
+            self._proc = ctx.Process(target=_serve, args=(child, os.getpid(), self.torch_threads),
+                                     name="zennav-fit", daemon=True)
+            self._proc.start()
+            child.close()
+
     def _call(self, req: tuple):
         with self._lock:
-            if self._closed:
-                raise RuntimeError("fit worker stopped")
-            if self._proc is None:
-                ctx = multiprocessing.get_context("spawn")
-                self._conn, child = ctx.Pipe()
-                self._proc = ctx.Process(target=_serve, args=(child, os.getpid(), self.torch_threads),
-                                         name="zennav-fit", daemon=True)
-                self._proc.start()
-                child.close()
+            self._spawn()
             conn = self._conn
         try:
             conn.send(req)

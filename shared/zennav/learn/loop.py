@@ -34,9 +34,10 @@ DEFAULTS = LearnSettings()
 class InProcessLoop:
     """Learner + PredictorCore of one target variant (module docstring); counts as the services do."""
 
-    def __init__(self, target: str = "body_velocity", settings: LearnSettings = DEFAULTS):
+    def __init__(self, target: str = "body_velocity", settings: LearnSettings = DEFAULTS, fitter=None):
         self.target, self.settings = target, settings
-        self.learner = Learner(target, settings)
+        self.fitter = fitter  # the learner's ANFIS fits: None in this process, or a FitWorker (close() stops it)
+        self.learner = Learner(target, settings, fitter=fitter)
         self.core = PredictorCore(settings.max_domain_excess)
         self.version = 0  # of the last set made
         self.queries = 0  # queries received for the target
@@ -113,14 +114,27 @@ class InProcessLoop:
                             **({"frozen": 1, "ignored": self.ignored} if self.frozen else {})},
                 "predictor": self.core.counters(), "link": {"queries": self.queries}}
 
+    def close(self) -> None:
+        """Stop the fit worker, if the loop has one (fits asked for later raise, counted fit_errors)."""
+        if self.fitter is not None:
+            self.fitter.close()
 
-def make_compensator(compensation: str, target: str = "body_velocity", seed: int = 0) -> InProcessLoop | None:
-    """'none' -> None; 'anfis' (CG), 'anfis-pso' or 'elman' -> the in-process loop with the default settings."""
+
+def make_compensator(compensation: str, target: str = "body_velocity", seed: int = 0,
+                     fit_worker: bool = False) -> InProcessLoop | None:
+    """'none' -> None; 'anfis' (CG), 'anfis-pso' or 'elman' -> the in-process loop with the default settings.
+    fit_worker: the ANFIS fits in a child process started now (zennav.learn.fit_worker: the same sets bit for bit;
+    torch imports there beside the run, not in it: a command that runs one replay; close() the loop after it)."""
     if compensation == "none":
         return None
     if target not in TARGETS:
         raise ValueError(f"target must be one of {TARGETS}")
-    return InProcessLoop(target, compensation_settings(compensation, seed))
+    settings = compensation_settings(compensation, seed)
+    if not (fit_worker and settings.model == "anfis"):
+        return InProcessLoop(target, settings)
+    from .fit_worker import FitWorker
+
+    return InProcessLoop(target, settings, FitWorker(settings.torch_threads).start())
 
 
 def training_set(ds, target: str = "body_velocity", navigator=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
