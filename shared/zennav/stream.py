@@ -70,41 +70,62 @@ def stream_messages(ds, windows: list, events: list, batch: int = 1) -> Iterator
     yield "stream", M.make("stream_start", int(ds.initial.t_ns), cseq=0, dataset=ds.name,
                            config=sensor_map(ds.config), initial=M.dataclass_to_map(ds.initial), counts=counts,
                            outages=[[int(a), int(b)] for a, b in windows])
-    t_list, dtheta, dvel = imu.t_ns.tolist(), imu.dtheta.tolist(), imu.dvel.tolist()
+    rows = _ImuRows(imu)
     make = M.make
     prev_t = int(ds.initial.t_ns)
-    held: list[int] = []  # batch: indices of the IMU samples not yet sent
+    held: list[tuple] = []  # batch: the IMU samples not yet sent, (t_ns, dtheta, dvel)
     cseq = 0
     for kind, idx in events:
         cseq += 1
         if kind != "imu":
             if held:
-                yield "imu", _batch(held, prev_t, t_list, dtheta, dvel, cseq - len(held))
-                prev_t = t_list[held[-1]]
+                yield "imu", _batch(held, prev_t, cseq - len(held))
+                prev_t = held[-1][0]
                 held = []
             yield kind, (M.gnss_msg(gnss.fix_at(idx), cseq) if kind == "gnss" else
                          M.aid_msg(kind, getattr(ds, kind).sample(idx), cseq))
         elif batch > 1:
-            held.append(idx)
+            held.append(rows[idx])
             if len(held) == batch:
-                yield "imu", _batch(held, prev_t, t_list, dtheta, dvel, cseq - len(held) + 1)
-                prev_t = t_list[held[-1]]
+                yield "imu", _batch(held, prev_t, cseq - len(held) + 1)
+                prev_t = held[-1][0]
                 held = []
         else:
-            t = t_list[idx]
-            yield "imu", make("imu", t, cseq=cseq, dt_ns=t - prev_t, dtheta=dtheta[idx], dvel=dvel[idx])
+            t, dtheta, dvel = rows[idx]
+            yield "imu", make("imu", t, cseq=cseq, dt_ns=t - prev_t, dtheta=dtheta, dvel=dvel)
             prev_t = t
     if held:
-        yield "imu", _batch(held, prev_t, t_list, dtheta, dvel, cseq - len(held) + 1)
-        prev_t = t_list[held[-1]]
+        yield "imu", _batch(held, prev_t, cseq - len(held) + 1)
+        prev_t = held[-1][0]
     cseq += 1
     yield "stream", M.make("stream_end", prev_t, cseq=cseq, counts=counts, last_cseq=cseq)
 
 
-def _batch(held: list, prev_t: int, t_list: list, dtheta: list, dvel: list, first_cseq: int) -> dict:
-    ts = [t_list[i] for i in held]
-    return M.imu_batch_msg(ts, [b - a for a, b in zip([prev_t] + ts[:-1], ts)], [dtheta[i] for i in held],
-                           [dvel[i] for i in held], first_cseq)
+class _ImuRows:
+    """rows[i] -> (t_ns, dtheta [3], dvel [3]) of IMU sample i as Python values, converted CHUNK samples at a time
+    (all at once they take about 330 bytes a sample: 240 MB for an hour at 200 Hz, held for the whole stream)."""
+
+    CHUNK = 8192
+
+    def __init__(self, imu):
+        self.imu, self.first = imu, -self.CHUNK - 1
+        self.t: list = []
+        self.dtheta: list = []
+        self.dvel: list = []
+
+    def __getitem__(self, i: int) -> tuple:
+        k = i - self.first
+        if not 0 <= k < len(self.t):
+            part = slice(i, i + self.CHUNK)
+            self.first, k = i, 0
+            self.t, self.dtheta, self.dvel = (a[part].tolist() for a in (self.imu.t_ns, self.imu.dtheta, self.imu.dvel))
+        return self.t[k], self.dtheta[k], self.dvel[k]
+
+
+def _batch(held: list, prev_t: int, first_cseq: int) -> dict:
+    ts = [r[0] for r in held]
+    return M.imu_batch_msg(ts, [b - a for a, b in zip([prev_t] + ts[:-1], ts)], [r[1] for r in held],
+                           [r[2] for r in held], first_cseq)
 
 
 class StreamFollower:

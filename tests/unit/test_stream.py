@@ -304,6 +304,25 @@ def _restarted_ins(tmp_path, history_size: int, dead: int | None):
     return second, sols, msgs, ds
 
 
+def test_history_keeps_the_messages_of_its_last_size_samples():
+    """The ingest's history counts samples (cseqs), not messages: with imu_batch messages of 50 samples and a fix
+    between them, a history of 120 keeps the messages that reach into the last 120 cseqs, whatever the batching
+    (before, it kept 120 messages: 50 times the samples with batches of 50)."""
+    import msgpack
+
+    from zennav.nodes.ingest import History
+
+    history = History(_Loopback(), K.sensor_history(), 120)
+    cseq = 0
+    for i in range(6):  # batch i: cseqs 51 i .. 51 i + 49, fix i: 51 i + 50
+        history.add("imu", {"schema": "imu_batch", "cseq": cseq, "t_ns_list": list(range(50))}, b"b%d" % i)
+        history.add("gnss", {"schema": "gnss", "cseq": cseq + 50}, b"g%d" % i)
+        cseq += 51
+    kept = [payload for _key, payload in msgpack.unpackb(history.answer(msgpack.packb([0, cseq])))]
+    assert kept == [b"b3", b"g3", b"b4", b"g4", b"b5", b"g5"]  # 305 - 120 = 185 < 202, the last cseq of batch 3
+    assert [p for _k, p in msgpack.unpackb(history.answer(msgpack.packb([200, 210])))] == [b"b3", b"g3", b"b4"]
+
+
 def test_restarted_ins_backfills_the_dead_window_from_the_ingest_history(tmp_path):
     """The restarted ins resumes from its checkpoint with the history's samples, fills the 3000 messages it never
     got live from it, outside its live queue, and navigates every sample: the replay's solution, bit for bit."""

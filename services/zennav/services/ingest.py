@@ -12,7 +12,7 @@ Wiring table
     waits for  liveliness of --wait-for services (default: ins) and a subscriber on the IMU key (zenoh's
                                          matching status); with --speed 0 the stream pauses while one of them is
                                          down (--rejoin-timeout); restarted, it recovers what it missed from --cache
-    serves     <base>/sensor/history     its last --cache messages by cseq range (zennav.nodes.ingest.History)
+    serves     <base>/sensor/history     the messages of its last --cache samples by cseq range (History)
     subscribes <base>/nav/status, <base>/nav/*/status   to see every ins that follows the stream acknowledge
                                          its end before the session closes
 
@@ -80,8 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="[s] how long an IMU sample waits for the receiver's fixes up to its time")
     p.add_argument("--gnss-silence", type=float, default=2.0, help="[s] receiver silence that is counted and logged")
     p.add_argument("--cache", type=int, default=20000,
-                   help="sensor messages kept for consumers that recover what they missed: served by cseq range "
-                        "(sensor/history), and per key by zenoh's advanced publisher (a --lockstep ins); 0: none")
+                   help="sensor samples (cseqs) kept for consumers that recover what they missed: served by cseq "
+                        "range (sensor/history), and per key by zenoh's advanced publisher (a --lockstep ins; the "
+                        "IMU key's in messages of --batch samples); 0: none")
     p.add_argument("--max-lead", type=int, default=10000,
                    help="with --speed 0: stay at most this many messages ahead of the slowest ins following the "
                         "stream (its nav status), so that what a crashed ins had queued is still in the --cache; "
@@ -107,10 +108,10 @@ def main(argv=None) -> int:
     run.counters = lambda: dict(stats)
     acks = EndAcks(run.bus)  # every ins following the stream, and its acknowledgement of the end
 
-    def publisher(key: str):
-        return run.bus.cached_publisher(key, args.cache) if args.cache > 0 else run.bus.publisher(key)
+    def publisher(key: str, per: int = 1):  # its cache: the messages (of `per` samples) of the last --cache samples
+        return run.bus.cached_publisher(key, -(-args.cache // per)) if args.cache > 0 else run.bus.publisher(key)
 
-    pubs = {"stream": publisher(k.stream()), "imu": publisher(k.imu(args.imu_id)),
+    pubs = {"stream": publisher(k.stream()), "imu": publisher(k.imu(args.imu_id), args.batch),
             "gnss": publisher(k.gnss(args.gnss_id))}
     aid_keys = {"dvl": k.dvl(args.dvl_id), "depth": k.depth(args.depth_id)}  # declared when the dataset has them
     run.ready("starting", f"loading {args.source}")

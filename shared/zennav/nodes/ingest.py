@@ -18,7 +18,8 @@ from .. import messages as M
 
 
 class History:
-    """The ingest's last ``size`` sensor messages, served by cseq range on <base>/sensor/history (Bus.serve): a
+    """The ingest's sensor messages of its last ``size`` cseqs (samples: an imu_batch holds one per IMU sample),
+    served by cseq range on <base>/sensor/history (Bus.serve): a
     consumer that lacks some (a restarted ins behind its checkpoint, a message lost in transit) fetches them
     outside its live queue (zennav.stream.Backfill, ``fetch_history``). A query's payload is msgpack
     [first, last] (cseqs, at most ``max_range`` apart); its one reply is msgpack [[key, payload], ...]: the
@@ -26,17 +27,20 @@ class History:
     ingest no longer has is left out. Not thread-bound: the stream's thread adds, zenoh's answers."""
 
     def __init__(self, bus, key: str, size: int, max_range: int = 10_000):
-        self.max_range = max_range
-        self._msgs: deque[tuple[int, int, str, bytes]] = deque(maxlen=size)  # (cseq, last cseq, key, payload)
+        self.size, self.max_range = int(size), max_range
+        self._msgs: deque[tuple[int, int, str, bytes]] = deque()  # (cseq, last cseq, key, payload)
         self._lock = threading.Lock()
         bus.serve(key, self.answer)
 
     def add(self, key: str, msg: dict, payload: bytes) -> None:
-        """A message just published on key (its payload as sent)."""
+        """A message just published on key (its payload as sent); the messages wholly older than the last size
+        cseqs go."""
         cseq = msg["cseq"]
+        last = cseq + len(msg["t_ns_list"]) - 1 if msg["schema"] == "imu_batch" else cseq
         with self._lock:
-            self._msgs.append((cseq, cseq + len(msg["t_ns_list"]) - 1 if msg["schema"] == "imu_batch" else cseq,
-                               key, payload))
+            self._msgs.append((cseq, last, key, payload))
+            while self._msgs[0][1] <= last - self.size:
+                self._msgs.popleft()
 
     def answer(self, query: bytes) -> bytes | None:
         """The reply to a query's payload (None: a malformed query, not answered)."""
