@@ -107,7 +107,7 @@ class _ImuRows:
 
     CHUNK = 8192
 
-    def __init__(self, imu):
+    def __init__(self, imu) -> None:
         self.imu, self.first = imu, -self.CHUNK - 1
         self.t: list = []
         self.dtheta: list = []
