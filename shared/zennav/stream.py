@@ -108,7 +108,7 @@ class _ImuRows:
     CHUNK = 8192
 
     def __init__(self, imu) -> None:
-        self.imu, self.first = imu, -self.CHUNK - 1
+        self.imu, self.first = imu, 0  # the rows of samples first .. first + len(self.t) - 1
         self.t: list = []
         self.dtheta: list = []
         self.dvel: list = []

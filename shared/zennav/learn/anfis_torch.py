@@ -216,7 +216,7 @@ def train(model: TorchAnfis, x, y, config: TrainConfig = TrainConfig(), x_val=No
 
     best, stale, stop = record(0), 0, "max_epochs"
     early = config.val_patience > 0 and val is not None
-    best_epoch, kept = 0, (model.p.clone(), model.theta.clone())
+    best_epoch, kept = 0, (model.p.clone(), model.theta.clone()) if early else None
     for epoch in range(1, config.max_epochs + 1):
         epoch_fn()
         rmse = record(epoch)
@@ -234,7 +234,7 @@ def train(model: TorchAnfis, x, y, config: TrainConfig = TrainConfig(), x_val=No
         if stale >= config.patience:
             stop = "tol"
             break
-    if not early:
+    if kept is None:
         return TrainResult(history, stop)
     model.p, model.theta = kept
     return TrainResult(history, stop, best_epoch)
