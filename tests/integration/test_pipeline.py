@@ -71,7 +71,8 @@ def test_pipeline_10min_200hz_full_speed_equals_replay_no_loss(cluster):
           f"({n / st['stream']['wall_s']:.0f}/s)")
     # the aiding reports are the same too
     rep = [(r.source, r.t_ns, r.fused) for r in ref.reports]
-    got = [(m["source"], m["t_ns"], m["fused"]) for m in aids.msgs()]
+    got = [(m["source"], m["t_ns"], m["fused"]) for m in
+           aids.wait(lambda c: c.msgs() if len(c.msgs()) >= len(rep) else None, 30, "every aid report")]
     assert sorted(got) == sorted(rep)
     assert cluster.bus.rejected == {}
 

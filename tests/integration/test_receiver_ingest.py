@@ -45,9 +45,12 @@ def test_nmea_and_ubx_receiver_on_a_pty_fused_by_the_ins(cluster):
     finally:
         os.close(master)
         os.close(slave)
-    reports = [m for m in aids.msgs() if m["source"] == "gnss_pos"]
-    reasons = {r: sum(1 for m in reports if m["reason"] == r) for r in {m["reason"] for m in reports}}
     n_sent = len(fixes)
+    # the status and the aid reports travel on different keys: the "done" status may overtake the last reports
+    reports = aids.wait(lambda c: r if len(r := [m for m in c.msgs() if m["source"] == "gnss_pos"]) >= n_sent
+                        else None, 30, "an aid report of every fix")
+    reasons = {r: sum(1 for m in reports if m["reason"] == r) for r in {m["reason"] for m in reports}}
+    assert len(reports) == n_sent
     assert st["gnss_count"] == n_sent  # every epoch, NMEA and UBX, reached the ins
     assert reasons.get("gnss_few_satellites") == 10 and reasons.get("gnss_fix_quality") == 10
     fused_t = [m["t_ns"] for m in reports if m["fused"]]
