@@ -171,9 +171,22 @@ FILTER: dict[str, Param] = {
     "vb_ceiling": Param("vb", ""),
 }
 
-# Vehicle profiles: the constraint names a profile lists (deploy/ins.yaml ``profiles``) and their NavConfig switch.
+# Vehicle profiles (deploy/ins.yaml ``profiles``): the constraints a vehicle runs (a name here: its NavConfig
+# switch) and the filter settings it changes (an AUV cruises at 1-2 m/s: in-motion alignment needs a lower speed).
 CONSTRAINTS = {"nhc": "nhc", "zupt": "zupt", "odo": "odometer"}
 NO_PROFILE = "none"  # constraints.profile: none keeps the file's own switches
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A vehicle profile: its constraint names (CONSTRAINTS) and filter settings {NavConfig field: SI value}."""
+
+    constraints: tuple[str, ...] = ()
+    settings: tuple[tuple[str, object], ...] = ()
+
+    def filter_settings(self) -> dict:
+        """{NavConfig field: value} the profile sets: every constraint switch (on if listed) and its settings."""
+        return {**constraint_flags(self.constraints), **dict(self.settings)}
 
 
 def constraint_flags(names) -> dict:
@@ -186,22 +199,31 @@ def constraint_flags(names) -> dict:
     return {flag: name in names for name, flag in CONSTRAINTS.items()}
 
 
-def load_filter_params(path: str | os.PathLike | None = None) -> dict:
+def load_filter_params(path: str | os.PathLike | None = None, profile: str | None = None) -> dict:
     """{NavConfig field: SI value} from an ins parameter file (``ins:`` mapping of sections). path None:
     deploy/ins.yaml, or NavConfig's defaults when the package is installed without deploy/. A partial file
-    leaves the other settings at NavConfig's defaults. A ``constraints.profile`` other than none sets the
-    constraint switches (nhc, zupt, odometer) to the ones its ``profiles`` entry lists."""
-    return _load_ins_file(path)[0]
+    leaves the other settings at NavConfig's defaults. A vehicle profile other than none (profile, else the file's
+    ``constraints.profile``) sets the constraint switches (nhc, zupt, odometer) to the ones its ``profiles`` entry
+    lists, and its own settings over the file's. ParamError for a profile the file does not have."""
+    settings, profiles, (name, where) = _load_ins_file(path)
+    if profile is not None:
+        name, where = profile, "--profile"
+    if name == NO_PROFILE:
+        return settings
+    if name not in profiles:
+        raise ParamError(f"{where}: unknown profile {name!r}; the profiles of {path or INS_PARAMS}: "
+                         f"{', '.join(sorted(profiles)) or 'none'} (or {NO_PROFILE})")
+    return {**settings, **profiles[name].filter_settings()}
 
 
-def load_profiles(path: str | os.PathLike | None = None) -> dict[str, tuple[str, ...]]:
-    """{vehicle profile: its constraint names} of an ins parameter file's ``profiles`` section (path None:
-    deploy/ins.yaml)."""
+def load_profiles(path: str | os.PathLike | None = None) -> dict[str, Profile]:
+    """{vehicle profile: Profile} of an ins parameter file's ``profiles`` section (path None: deploy/ins.yaml)."""
     return _load_ins_file(path)[1]
 
 
-def _load_ins_file(path) -> tuple[dict, dict]:
-    """(filter settings, profiles) of an ins parameter file (see load_filter_params)."""
+def _load_ins_file(path) -> tuple[dict, dict, tuple[str, str]]:
+    """(filter settings without the profile, profiles, (the file's constraints.profile, where it is written)) of an
+    ins parameter file (see load_filter_params)."""
     import yaml
 
     from .yamlfile import load_with_nodes
@@ -210,7 +232,7 @@ def _load_ins_file(path) -> tuple[dict, dict]:
     if not p.exists():
         if path:
             raise ParamError(f"{p}: ins parameter file not found")
-        return {}, {}
+        return {}, {}, (NO_PROFILE, "")
     text = p.read_text()
     try:
         doc, root = load_with_nodes(text)
@@ -221,7 +243,7 @@ def _load_ins_file(path) -> tuple[dict, dict]:
     if not isinstance(doc, dict) or set(doc) != {"ins"} or not isinstance(doc["ins"], dict):
         raise ParamError(f"{p}:1: needs one top-level mapping 'ins:' of sections")
     out: dict = {}
-    profiles: dict[str, tuple[str, ...]] = {}
+    profiles: dict[str, Profile] = {}
     profile = (NO_PROFILE, "")
     for section, entries in doc["ins"].items():
         where = f"{p}:{lines.get((section,), 0)}: {section}"
@@ -241,26 +263,37 @@ def _load_ins_file(path) -> tuple[dict, dict]:
                 raise ParamError(f"{where}: unknown setting{hint}; known in {section}: "
                                  f"{sorted(k for k, s in FILTER.items() if s.section == section) or 'none'}")
             out[key] = _convert(value, spec, where)
-    if profile[0] != NO_PROFILE:
-        if profile[0] not in profiles:
-            raise ParamError(f"{profile[1]}: unknown profile {profile[0]!r}; the file's profiles: "
-                             f"{sorted(profiles) or 'none'} (or {NO_PROFILE})")
-        out.update(constraint_flags(profiles[profile[0]]))
-    return out, profiles
+    if profile[0] != NO_PROFILE and profile[0] not in profiles:
+        raise ParamError(f"{profile[1]}: unknown profile {profile[0]!r}; the file's profiles: "
+                         f"{sorted(profiles) or 'none'} (or {NO_PROFILE})")
+    return out, profiles, profile
 
 
-def _profiles(entries: dict, p: Path, lines: dict) -> dict[str, tuple[str, ...]]:
-    """The ``profiles`` section: {name: [constraint names]}, checked."""
+def _profiles(entries: dict, p: Path, lines: dict) -> dict[str, Profile]:
+    """The ``profiles`` section, checked: {name: [constraint names]} or {name: {constraints: [names], setting:
+    value in its unit, ...}}."""
     out = {}
-    for name, names in entries.items():
+    for name, entry in entries.items():
         where = f"{p}:{lines.get(('profiles', name), 0)}: profiles.{name}"
+        body = entry if isinstance(entry, dict) else {"constraints": entry}
+        names = body.get("constraints", [])
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-            raise ParamError(f"{where}: a profile is a list of constraint names ({', '.join(CONSTRAINTS)})")
+            raise ParamError(f"{where}: a profile is a list of constraint names ({', '.join(CONSTRAINTS)}) or a "
+                             "mapping of 'constraints: [names]' and filter settings")
         try:
             constraint_flags(names)
         except ParamError as e:
             raise ParamError(f"{where}: {e}") from None
-        out[str(name)] = tuple(names)
+        settings = []
+        for key, value in body.items():
+            if key == "constraints":
+                continue
+            spec = FILTER.get(key)
+            if spec is None or key in CONSTRAINTS.values():
+                raise ParamError(f"{where}.{key}: not a filter setting a profile can set (the constraint switches "
+                                 "come from its constraints list)")
+            settings.append((key, _convert(value, spec, f"{where}.{key}")))
+        out[str(name)] = Profile(tuple(names), tuple(settings))
     return out
 
 

@@ -189,20 +189,14 @@ def _learning_summary(compensation: dict, engine_counters: dict) -> str:
 
 
 def filter_settings(spec: str, params: Path | None, profile: str | None, constraints: list[str] | None) -> dict:
-    """The parameter file's filter settings ({NavConfig field: SI value}) with the vehicle constraints of a
-    profile (a name of the file's profiles, "dataset": the dataset's vehicle, "none": none) and then an explicit
-    list of constraint names, which wins. ParamError for an unknown profile or constraint."""
+    """The parameter file's filter settings ({NavConfig field: SI value}) with a vehicle profile's constraints and
+    settings (a name of the file's profiles, "dataset": the dataset's vehicle, "none": none; None: the file's own
+    constraints.profile) and then an explicit list of constraint names, which wins. ParamError for an unknown
+    profile or constraint."""
     from .datasets.registry import vehicle_of
-    from .params import ParamError, constraint_flags, load_filter_params, load_profiles
+    from .params import constraint_flags, load_filter_params
 
-    settings = load_filter_params(params)
-    if profile is not None:
-        name = vehicle_of(spec) if profile == "dataset" else profile
-        profiles = load_profiles(params)
-        if name != "none" and name not in profiles:
-            raise ParamError(f"--profile: {name!r} is not a profile of {params or 'deploy/ins.yaml'} "
-                             f"({', '.join(sorted(profiles))}, dataset or none)")
-        settings.update(constraint_flags(profiles.get(name, ())))
+    settings = load_filter_params(params, vehicle_of(spec) if profile == "dataset" else profile)
     if constraints is not None:
         settings.update(constraint_flags(constraints))
     return settings
@@ -216,6 +210,8 @@ def _alignment_summary(status: dict, t0_ns: int) -> str:
     times = ", ".join(f"{k} at {(v - t0_ns) / 1e9:.2f} s" for k, v in al["times_ns"].items())
     lines = [(f"alignment: {al['state']} ({al['method'] or 'not yet'}; {times}), heading 1-sigma "
               f"{math.degrees(al['heading_std_rad']):.3f} deg, roll/pitch from {al['tilt_source']}")]
+    if al.get("waiting"):
+        lines.append(f"alignment waits for: {al['waiting']}")
     for src, r in status["measurement_noise"].items():
         ratio = "" if "scale_diag" not in r else f", R / reported {[round(x, 2) for x in r['scale_diag']]}"
         unit = {"gnss_pos": " [m^2, NED]", "gnss_vel": " [(m/s)^2, NED]"}.get(src, " [SI units squared]")
@@ -283,7 +279,8 @@ def _setup_logging(verbose: int) -> None:
               "and lever arm are used unchanged.")
 @click.option("--heading-unknown", is_flag=True,
               help="Ignore the dataset's initial yaw: align at rest (gyrocompassing where the gyro allows it) or in "
-              "motion from the GNSS velocity (yaw = course once faster than 3 m/s).")
+              "motion from the GNSS velocity (yaw = course once faster than align_min_speed_mps: 3 m/s, the auv "
+              "profile's 1 m/s).")
 @click.option("--params", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The ins's filter parameter file (human units) [deploy/ins.yaml]: the same filter as zennav-ins.")
 @click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,
@@ -293,8 +290,9 @@ def _setup_logging(verbose: int) -> None:
                    "--constraints; default: the parameter file's (off).")
 @click.option("--profile", default=None, metavar="NAME",
               help="Vehicle profile of the parameter file (car: nhc, zupt, odo; multirotor: zupt; fixed-wing: none; "
-                   "pedestrian: zupt), 'dataset' for the dataset's vehicle, or none; sets the constraints. Default: "
-                   "the parameter file's constraints.profile (none).")
+                   "pedestrian: zupt; auv: none, in-motion alignment from 1 m/s), 'dataset' for the dataset's "
+                   "vehicle, or none; sets the constraints and the settings it lists. Default: the parameter file's "
+                   "constraints.profile (none).")
 @click.option("--constraints", "constraints", default=None, metavar="LIST",
               callback=lambda c, p, v: None if v is None else [x for x in v.split(",") if x and x != "none"],
               help="The vehicle constraints to run, comma-separated from nhc, zupt, odo, or none; wins over "

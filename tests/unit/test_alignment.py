@@ -212,3 +212,23 @@ def test_in_motion_alignment_without_gnss_velocity_uses_position_differences():
     err = yaw_errors_deg(ds, res)
     assert err[fine] < 3 * 10.0  # course over one second from 0.5 m fixes, 1-sigma at most align_max_heading_std
     assert err[-1] < 1.0
+
+
+def test_a_slow_auv_aligns_in_motion_with_its_profile_and_says_what_it_waits_for_without():
+    """The simulated AUV cruises at about 1.7 m/s at the surface: with the default align_min_speed_mps (3 m/s) the
+    engine stays coarse and its status says why (the speed reached against the threshold); the auv profile's 1 m/s
+    (deploy/ins.yaml) aligns it in motion and the heading converges."""
+    from zennav.datasets.registry import load_dataset
+    from zennav.params import load_filter_params, nav_config
+
+    ds = load_dataset("sim:auv", duration_s=200.0)
+    ds.initial = heading_unknown(ds.initial, np.random.default_rng(3))
+    waiting = run_replay(ds).status["alignment"]
+    assert waiting["state"] == "coarse" and waiting["method"] == ""
+    speed = float(waiting["waiting"].split("at most ")[1].split(" m/s")[0])
+    assert 1.0 < speed < 3.0 and "below align_min_speed_mps 3.00 m/s" in waiting["waiting"], waiting
+    ds.config = nav_config(ds.config, load_filter_params(None, "auv"))
+    res = run_replay(ds)
+    al = res.status["alignment"]
+    assert al["method"] == "in_motion" and al["state"] in ("fine", "aligned") and al["waiting"] == "", al
+    assert yaw_errors_deg(ds, res)[-2000:].max() < 1.0

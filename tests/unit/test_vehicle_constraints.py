@@ -170,8 +170,9 @@ def test_comma2k19_has_rear_wheel_speeds():
 
 
 def test_profiles_are_parsed_and_applied(tmp_path):
-    assert load_profiles() == {"car": ("nhc", "zupt", "odo"), "multirotor": ("zupt",), "fixed-wing": (),
-                               "pedestrian": ("zupt",), "auv": ()}
+    assert {name: p.constraints for name, p in load_profiles().items()} == {
+        "car": ("nhc", "zupt", "odo"), "multirotor": ("zupt",), "fixed-wing": (), "pedestrian": ("zupt",), "auv": ()}
+    assert load_profiles()["auv"].settings == (("align_min_speed_mps", 1.0),)
     assert constraint_flags(["zupt"]) == {"nhc": False, "zupt": True, "odometer": False}
     shipped = load_filter_params()
     assert not (shipped["nhc"] or shipped["zupt"] or shipped["odometer"])  # profile none: the switches, all off
@@ -190,7 +191,24 @@ def test_profiles_are_parsed_and_applied(tmp_path):
     got = load_filter_params(p)
     assert (got["nhc"], got["zupt"], got["odometer"]) == (True, False, True)
     assert got["vehicle_mount_euler"] == (0.0, math.radians(-6.8), math.radians(5.4))
+    # a profile's settings go over the file's sections; another profile named on the command line takes the
+    # sections' values back
+    p.write_text("ins:\n  alignment:\n    align_min_speed_mps: 3.0 m/s\n  constraints:\n    profile: sub\n"
+                 "  profiles:\n    car: [nhc]\n    sub:\n      constraints: [zupt]\n"
+                 "      align_min_speed_mps: 1.5 m/s\n      align_course_std: 4 deg\n")
+    got = load_filter_params(p)
+    assert (got["nhc"], got["zupt"], got["align_min_speed_mps"]) == (False, True, 1.5)
+    assert got["align_course_std"] == pytest.approx(math.radians(4.0))
+    got = filter_settings("sim:car", p, "car", None)
+    assert (got["nhc"], got["zupt"], got["align_min_speed_mps"]) == (True, False, 3.0)
+    assert "align_course_std" not in got
+    assert filter_settings("akit:Trajectory1", None, "dataset", None)["align_min_speed_mps"] == 1.0
     for body, message in [("  constraints:\n    profile: boat\n", ":3: constraints.profile: unknown profile"),
+                          ("  profiles:\n    sub:\n      align_min_speed_mps: 1 deg\n",
+                           "profiles.sub.align_min_speed_mps: unit 'deg' where 'm/s'"),
+                          ("  profiles:\n    sub:\n      top_speed: 1 m/s\n", ":3: profiles.sub.top_speed: not a"),
+                          ("  profiles:\n    sub:\n      nhc: true\n", "profiles.sub.nhc: not a filter setting"),
+                          ("  profiles:\n    sub: {constraints: nhc}\n", "a profile is a list"),
                           ("  profiles:\n    rover: [nhc, dvl]\n", ":3: profiles.rover: unknown constraint"),
                           ("  constraints:\n    vehicle_lever_b: 1, 2 m\n", "three finite numbers"),
                           ("  constraints:\n    vehicle_lever_b: 1, 2, 3 deg\n", "unit 'm' expected")]:

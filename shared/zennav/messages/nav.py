@@ -30,8 +30,9 @@ def check_nav_status(msg: dict) -> str:
         for f in ("method", "tilt_source", "gyrocompass"):
             if type(al.get(f)) is not str:
                 return f"bad_type: alignment.{f} is {type(al.get(f)).__name__}, want str"
-        if type(al.get("initial_state", "")) is not str:
-            return f"bad_type: alignment.initial_state is {type(al.get('initial_state')).__name__}, want str"
+        for f in ("initial_state", "waiting"):
+            if type(al.get(f, "")) is not str:
+                return f"bad_type: alignment.{f} is {type(al.get(f)).__name__}, want str"
         hs = al.get("heading_std_rad")
         if not _num(hs) or hs < 0:
             return "bad_value: alignment.heading_std_rad must be a number >= 0"
@@ -107,7 +108,7 @@ define("nav_status", 1, "ins health: GNSS state, core counters, rejected (bus va
        "Optional (added compatibly, checked strictly when present, see check_nav_status): alignment {state: "
        "coarse|fine|aligned, method, heading_std_rad, times_ns {state: t_ns}, tilt_source, gyrocompass, optional "
        "initial_state: the configured initial state's test against the first fixes ('', at rest, position and "
-       "velocity reset, accepted, rejected: why)}; "
+       "velocity reset, accepted, rejected: why), optional waiting: while coarse, what the alignment waits for}; "
        "adaptive_r: adaptive measurement noise on/off; measurement_noise {source: {R_diag [unit^2], ratio "
        "(R / reported R, diagonal) or None, branch, k, inflate, fading}}; aid_counts {stream: samples consumed} "
        "of the aid streams (dvl, depth) the stream has.",
@@ -312,7 +313,7 @@ def alignment_map(al: dict) -> dict:
             "heading_std_rad": _finite(al["heading_std_rad"], 1e9),
             "times_ns": {str(k): int(v) for k, v in al.get("times_ns", {}).items()},
             "tilt_source": str(al.get("tilt_source") or ""), "gyrocompass": str(al.get("gyrocompass") or ""),
-            "initial_state": str(al.get("initial_state") or "")}
+            "initial_state": str(al.get("initial_state") or ""), "waiting": str(al.get("waiting") or "")}
 
 
 def noise_map(noise: dict) -> dict:

@@ -181,6 +181,7 @@ class Alignment:
         self.rest = [0.0] * 7
         self.rest_prev = False  # the last fix was at rest
         self.prev_track: tuple | None = None
+        self.speed_max = 0.0  # fastest horizontal GNSS speed [m/s] seen while coarse
         self.gyrocompass_refusal = gyrocompass_refusal(config.imu_noise, float(initial.llh[0]),
                                                        config.align_gyrocompass_s, config.align_max_heading_std)
         self.times: dict[str, int] = {}
@@ -391,6 +392,8 @@ class Alignment:
         cfg = self.config
         std_pos = np.maximum(fix.std_ned, cfg.pos_std_floor_m)
         v, std_v = self._fix_velocity(fix, std_pos, self.prev_track)
+        if v is not None:
+            self.speed_max = max(self.speed_max, math.hypot(v[0], v[1]))
         seg, rest = self.seg, self.rest
         self.tilt_std += cfg.imu_noise.gyro_bias_std * seg[6]  # roll/pitch drift on the gyro since the last fix
         still = v is not None and math.hypot(v[0], v[1]) <= cfg.align_still_speed_mps + 3.0 * max(std_v[0], std_v[1])
@@ -461,7 +464,19 @@ class Alignment:
     def status(self, nav) -> dict:
         return {"state": self.state, "method": self.method, "heading_std_rad": float(nav.std_att[2]),
                 "times_ns": dict(self.times), "tilt_source": self.tilt_source, "gyrocompass": self.gyrocompass_refusal,
-                "initial_state": self.initial_check}
+                "initial_state": self.initial_check, "waiting": self.waiting()}
+
+    def waiting(self) -> str:
+        """While coarse: what in-motion alignment waits for ("" otherwise): the speed reached against
+        align_min_speed_mps, which a vehicle profile or parameter file sets (an AUV cruises at 1-2 m/s)."""
+        if not self.coarse:
+            return ""
+        cfg = self.config
+        return (f"in motion: GNSS speed at most {self.speed_max:.2f} m/s so far, below align_min_speed_mps "
+                f"{cfg.align_min_speed_mps:.2f} m/s (a vehicle profile or --params file sets it)"
+                if self.speed_max < cfg.align_min_speed_mps else
+                f"in motion: a heading 1-sigma within align_max_heading_std "
+                f"{math.degrees(cfg.align_max_heading_std):.1f} deg")
 
     def get_state(self) -> dict:
         """Everything of the alignment that determines the engine's future output (plain, msgpack-safe)."""
@@ -471,6 +486,7 @@ class Alignment:
                 "seg": [float(x) for x in self.seg], "rest": [float(x) for x in self.rest],
                 "rest_prev": bool(self.rest_prev),
                 "prev_track": None if track is None else [int(track[0]), track[1].tolist(), track[2].tolist()],
+                "speed_max": float(self.speed_max),
                 "checking": bool(self.checking), "initial_check": self.initial_check, "check_strike": self.check_strike,
                 "check_v_ref": None if self.check_v_ref is None else list(self.check_v_ref),
                 "check_prev": None if self.check_prev is None else [int(self.check_prev[0])] + [
@@ -483,6 +499,7 @@ class Alignment:
         self.seg, self.rest, self.rest_prev = [float(x) for x in st["seg"]], [float(x) for x in st["rest"]], \
             bool(st["rest_prev"])
         track = st["prev_track"]
+        self.speed_max = float(st.get("speed_max", 0.0))  # a checkpoint before it: the diagnostic starts again
         self.prev_track = None if track is None else (int(track[0]), np.array(track[1], dtype=float),
                                                       np.array(track[2], dtype=float))
         self.checking, self.initial_check, self.check_strike = bool(st["checking"]), st["initial_check"], \
