@@ -232,3 +232,64 @@ def test_a_slow_auv_aligns_in_motion_with_its_profile_and_says_what_it_waits_for
     al = res.status["alignment"]
     assert al["method"] == "in_motion" and al["state"] in ("fine", "aligned") and al["waiting"] == "", al
     assert yaw_errors_deg(ds, res)[-2000:].max() < 1.0
+
+
+def test_heading_from_velocity_changes_recovers_the_rotation_with_an_honest_sigma():
+    """Velocity changes a in a frame of unknown yaw and b = R(psi) a + noise: the estimate is within 3 sigma of psi;
+    with the noise reported 5x too large the residuals shrink the 1-sigma from 10 pairs on (and not before), with
+    it reported 5x too small they inflate it."""
+    from zennav.nav.alignment import ACCEL_MIN_PAIRS, heading_from_velocity_changes
+
+    rng = np.random.default_rng(11)
+    psi = math.radians(-127.0)
+    R = np.array([[math.cos(psi), -math.sin(psi)], [math.sin(psi), math.cos(psi)]])
+    for true_std, reported_std in ((0.1, 0.1), (0.1, 0.5), (0.5, 0.1)):
+        sums = [0.0] * 5
+        sigmas = []
+        for _ in range(40):
+            a = rng.normal(0.0, 0.5, 2)
+            b = R @ a + rng.normal(0.0, true_std, 2)
+            w = 1.0 / (2.0 * reported_std**2)
+            sums = [sums[0] + w * (a @ b), sums[1] + w * (a[0] * b[1] - a[1] * b[0]), sums[2] + w * (a @ a),
+                    sums[3] + w * (b @ b), sums[4] + 1.0]
+            sigmas.append((heading_from_velocity_changes(sums)[1], math.sqrt(1.0 / sums[2])))
+        est, std = heading_from_velocity_changes(sums)
+        assert abs(math.remainder(est - psi, 2 * math.pi)) < 3.0 * std, (true_std, reported_std)
+        prior = math.sqrt(1.0 / sums[2])  # the 1-sigma from the reported noise alone
+        if reported_std > true_std:
+            assert all(sig >= pri for sig, pri in sigmas[:ACCEL_MIN_PAIRS - 1]) and std < 0.5 * prior
+        elif reported_std < true_std:
+            assert std > 2.0 * prior
+    assert heading_from_velocity_changes([0.0] * 5)[1] == math.inf
+
+
+def test_a_tilting_start_is_not_rest():
+    """Levelling and gyrocompassing sum the segments between fixes at rest: a segment in which the body turned
+    (a multirotor tilting 2 deg to accelerate while its GNSS speed still reads rest) is not one."""
+    from zennav.nav.alignment import turned
+
+    noise = IMU_GRADES["mems"].noise()
+    assert turned([math.radians(2.0), 0.0, 0.0, 0.0, 0.0, -9.8, 1.0], noise)
+    assert not turned([noise.gyro_bias_std, 0.0, earth.OMEGA_IE, 0.0, 0.0, -9.8, 1.0], noise)
+
+
+def test_a_multirotor_aligns_by_acceleration_where_the_course_misleads():
+    """sim:multirotor (MEMS, levelled on the ground, then flying in every direction) with the heading unknown: the
+    multirotor profile's acceleration method hands over within 3 sigma and ends within 1 deg; yaw = course hands over
+    tens of degrees off."""
+    from zennav.datasets.registry import load_dataset
+    from zennav.params import load_filter_params, nav_config
+
+    ds = load_dataset("sim:multirotor", duration_s=300.0)
+    ds.initial = heading_unknown(ds.initial, np.random.default_rng(5))
+    got = {}
+    for method in ("acceleration", "course"):
+        ds.config = nav_config(ds.config, {**load_filter_params(None, "multirotor"), "align_in_motion": method})
+        res = run_replay(ds)
+        al = res.status["alignment"]
+        err = yaw_errors_deg(ds, res)
+        i = int(np.searchsorted(res.t_ns, al["times_ns"]["fine"]))
+        got[method] = (err[i], err[i] / math.degrees(al["start_heading_std_rad"]), err[-500:].max(), al)
+    err0, ratio, end, al = got["acceleration"]
+    assert al["method"] == "acceleration" and al["tilt_source"] == "levelling" and ratio < 3.0 and end < 1.0, got
+    assert got["course"][0] > 20.0, got

@@ -1,5 +1,5 @@
 """Coarse alignment of the strapdown INS: static levelling and gyrocompassing, and in-motion yaw and pitch
-from the GNSS velocity (seed 002). Frames: n = NED, b = FRD, Euler ZYX (roll, pitch, yaw) [rad], SI units.
+from the GNSS velocity (seed 002) or its changes. Frames: n = NED, b = FRD, Euler ZYX (roll, pitch, yaw) [rad], SI units.
 
 Static (Groves 2013, "Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems", 2nd ed.,
 section 5.6.2; section 14.4.1 for the error budget). At rest f_b = C_bn (0, 0, -g) and
@@ -43,6 +43,13 @@ body x axis moves along its velocity (land vehicles, fixed-wing aircraft): yaw =
 pitch = atan2(-v_D, sqrt(v_N^2 + v_E^2)) (the climb angle); roll 0 with a large variance for ground vehicles.
 The yaw 1-sigma is the velocity noise across the track over the speed plus a course allowance (sideslip,
 yaw mounting); the climb-angle pitch likewise with a tilt allowance (suspension, pitch mounting).
+A vehicle that does not move along its x axis (a multirotor flies sideways and backwards) aligns instead by its
+accelerations (align_in_motion: acceleration; Groves 2013 section 14.4.2): between two fixes the IMU's horizontal
+velocity change, integrated in the engine's frame of unknown yaw with the known roll and pitch, is the GNSS's rotated
+by the unknown yaw offset; its least-squares value over every pair of fixes since the start
+(heading_from_velocity_changes) and its 1-sigma hand over once that is below align_max_heading_std.
+Rest, for levelling and gyrocompassing, is a GNSS speed that reads rest and a body that did not turn since the last
+fix (turned): a vehicle tilts as it starts to move while its speed still reads rest.
 """
 from __future__ import annotations
 
@@ -142,6 +149,42 @@ def course_alignment(v_n, std_v_n, course_std: float, tilt_std: float) -> tuple[
     return np.array([0.0, pitch, yaw]), np.array([tilt_std, pitch_std, yaw_std])
 
 
+STILL_RATE = math.radians(0.1)  # rad/s: the net rotation a vehicle at rest may show between two fixes (rocking)
+
+
+def turned(seg, noise: ImuNoise) -> bool:
+    """Whether the body rotated between two fixes: the summed angle increments seg[0:3] [rad] over seg[6] [s] beyond
+    STILL_RATE plus three times what the gyro's bias, its angle random walk and the earth rate give at rest. A
+    vehicle that starts to move tilts (a multirotor to accelerate, a car on its suspension) while its GNSS speed
+    still reads rest: its increments would spoil levelling and gyrocompassing (a 2 deg tilt taken as rest)."""
+    dt = seg[6]
+    at_rest = STILL_RATE * dt + 3.0 * (noise.gyro_bias_std * dt + noise.arw * math.sqrt(dt) + earth.OMEGA_IE * dt)
+    return math.sqrt(seg[0] ** 2 + seg[1] ** 2 + seg[2] ** 2) > at_rest
+
+
+ACCEL_MIN_PAIRS = 10  # pairs of fixes before the acceleration method trusts its own residuals for its 1-sigma
+
+
+def heading_from_velocity_changes(sums) -> tuple[float, float]:
+    """(psi, 1-sigma) [rad]: the yaw rotation that best takes the IMU's horizontal velocity changes a (integrated in
+    a frame of unknown yaw) onto the GNSS's b over the same intervals, from sums = (sum w a.b, sum w a x b,
+    sum w |a|^2, sum w |b|^2, n pairs) with weights w the inverse variance of b - R a per axis. The 2-D orthogonal
+    Procrustes (Wahba) solution psi = atan2(sum w a x b, sum w a.b); its 1-sigma the inverse square root of the
+    Fisher information sum w |a|^2 times the a-posteriori variance factor s0^2 = RSS / (2 n - 1) of the weighted
+    residuals (RSS = sum w |b|^2 + sum w |a|^2 - 2 sqrt(dot^2 + cross^2)): the weights' variances come from the
+    reported 1-sigma, which a receiver or a position difference may over- or understate; below ACCEL_MIN_PAIRS
+    pairs s0^2 only inflates. (Wahba 1965, SIAM Review 7(3) p. 409; the variance factor: Koch 1999, "Parameter
+    Estimation and Hypothesis Testing in Linear Models", sec. 3.2.3; in-motion heading from the GNSS and IMU
+    accelerations for a vehicle not moving along its x axis: Groves 2013 section 14.4.2.) inf before any change."""
+    dot, cross, info, bb, n = (float(x) for x in sums[:5])
+    if info <= 0.0 or n < 1:
+        return math.atan2(cross, dot), math.inf
+    rss = max(bb + info - 2.0 * math.hypot(dot, cross), 0.0)
+    s02 = rss / max(2.0 * n - 1.0, 1.0)
+    s02 = s02 if n >= ACCEL_MIN_PAIRS else max(s02, 1.0)
+    return math.atan2(cross, dot), math.sqrt(s02 / info)
+
+
 UNKNOWN_ANGLE_STD = math.pi / math.sqrt(3.0)  # 1-sigma [rad] of an angle uniform in +-180 deg
 AT_REST = "consistent at rest (tested again once moving)"  # Alignment.initial_check of a state so far
 RESET = "position and velocity reset from the fixes (attitude under test)"  # likewise
@@ -182,6 +225,11 @@ class Alignment:
         self.rest_prev = False  # the last fix was at rest
         self.prev_track: tuple | None = None
         self.speed_max = 0.0  # fastest horizontal GNSS speed [m/s] seen while coarse
+        self.start_heading_std = math.nan  # the heading 1-sigma [rad] a coarse alignment handed to the filter
+        # (a diagnostic of this process's run: not in get_state, a resumed engine reports nan)
+        self.dv_p = [0.0, 0.0]  # the IMU's horizontal velocity change since the last fix [m/s, N, E of the yaw-0 frame]
+        self.accel_prev: tuple | None = None  # (v_N, v_E, 1-sigma) [m/s] of the last fix with a velocity
+        self.accel_sums = [0.0, 0.0, 0.0, 0.0, 0.0]  # weighted a.b, a x b, |a|^2, |b|^2 and the count of pairs
         self.gyrocompass_refusal = gyrocompass_refusal(config.imu_noise, float(initial.llh[0]),
                                                        config.align_gyrocompass_s, config.align_max_heading_std)
         self.times: dict[str, int] = {}
@@ -341,13 +389,16 @@ class Alignment:
         if self.state == AlignState.FINE and nav.std_att[2] < self.config.align_heading_std:
             self._set_state(nav, AlignState.ALIGNED, t_ns, "")
 
-    def add(self, dtheta, dvel, dt: float) -> None:
-        """Coarse: sum the bias-corrected increments [rad, m/s] over dt [s] for levelling and gyrocompassing."""
+    def add(self, dtheta, dvel, dt: float, dv_n: float, dv_e: float) -> None:
+        """Coarse: sum the bias-corrected increments [rad, m/s] over dt [s] for levelling and gyrocompassing, and the
+        horizontal velocity change they integrate to in the engine's frame (yaw unknown) [m/s, N, E]."""
         seg = self.seg
         for i in range(3):
             seg[i] += dtheta[i]
             seg[3 + i] += dvel[i]
         seg[6] += dt
+        self.dv_p[0] += dv_n
+        self.dv_p[1] += dv_e
 
     def on_attitude(self, nav, t_ns: int, roll: float, pitch: float, std: float, max_age_s: float) -> bool:
         """Roll and pitch [rad] with 1-sigma std [rad] from an attitude source at t_ns: taken only while coarse,
@@ -394,9 +445,11 @@ class Alignment:
         v, std_v = self._fix_velocity(fix, std_pos, self.prev_track)
         if v is not None:
             self.speed_max = max(self.speed_max, math.hypot(v[0], v[1]))
+        self._velocity_change(v, std_v, self.seg[6])
         seg, rest = self.seg, self.rest
         self.tilt_std += cfg.imu_noise.gyro_bias_std * seg[6]  # roll/pitch drift on the gyro since the last fix
-        still = v is not None and math.hypot(v[0], v[1]) <= cfg.align_still_speed_mps + 3.0 * max(std_v[0], std_v[1])
+        still = v is not None and math.hypot(v[0], v[1]) <= cfg.align_still_speed_mps + 3.0 * max(std_v[0], std_v[1]) \
+            and not turned(seg, cfg.imu_noise)
         if still and self.rest_prev:
             self.rest = rest = [a + b for a, b in zip(rest, seg)]
         elif not still:
@@ -414,6 +467,8 @@ class Alignment:
                                       cfg.align_max_heading_std)
                 return self._start_fine(nav, al.euler, al.std_euler, "gyrocompass", fix, omega_ib_b, v, std_pos,
                                         std_v)
+        if cfg.align_in_motion == "acceleration":
+            return self._acceleration_alignment(nav, fix, omega_ib_b, v, std_pos, std_v)
         if v is None or not math.hypot(v[0], v[1]) >= cfg.align_min_speed_mps:  # not yet fast enough
             return "align_coarse"
         euler, std_euler = course_alignment(v, std_v, cfg.align_course_std, cfg.align_tilt_std)
@@ -425,6 +480,48 @@ class Alignment:
                 self.tilt_source = "climb_angle"
             return self._start_fine(nav, euler, std_euler, "in_motion", fix, omega_ib_b, v, std_pos, std_v)
         return "align_coarse"
+
+    def _tilt(self) -> float:
+        """Roll/pitch 1-sigma [rad] the acceleration method works with: the known one, at most align_tilt_std (an
+        unknown tilt is taken as level within it, as the course method's roll 0)."""
+        return min(self.tilt_std, self.config.align_tilt_std)
+
+    def _velocity_change(self, v, std_v, dt: float) -> None:
+        """One pair of fixes for the acceleration method: the GNSS horizontal velocity change b since the last fix
+        with a velocity against the IMU's a over the same time dt [s] (self.dv_p, in the engine's yaw-0 frame), summed
+        for the least-squares rotation b = R(psi) a (see heading_from_velocity_changes); each pair weighted by the
+        inverse variance of b - R a per axis: the two fixes' velocity variances, the tilt error times g over dt, the
+        accelerometer noise and bias over dt."""
+        a, self.dv_p = self.dv_p, [0.0, 0.0]
+        prev = self.accel_prev
+        self.accel_prev = None if v is None else (float(v[0]), float(v[1]), float(max(std_v[0], std_v[1])))
+        if prev is None or v is None or dt <= 0.0:
+            return
+        noise = self.config.imu_noise
+        var = (prev[2] ** 2 + self.accel_prev[2] ** 2 + (earth.G0 * self._tilt() * dt) ** 2  # type: ignore[index]
+               + noise.vrw**2 * dt + (noise.accel_bias_std * dt) ** 2)
+        b = (v[0] - prev[0], v[1] - prev[1])
+        a2 = a[0] ** 2 + a[1] ** 2
+        sums = self.accel_sums
+        sums[0] += (a[0] * b[0] + a[1] * b[1]) / var
+        sums[1] += (a[0] * b[1] - a[1] * b[0]) / var
+        sums[2] += a2 / var
+        sums[3] += (b[0] ** 2 + b[1] ** 2) / var
+        sums[4] += 1.0
+
+    def _acceleration_alignment(self, nav, fix: GnssFix, omega_ib_b, v, std_pos, std_v) -> str:
+        """In motion by velocity changes: once the rotation between the IMU's and the GNSS's horizontal velocity
+        changes is known within align_max_heading_std, the yaw is the engine's plus it, roll and pitch the engine's
+        (levelled, given or assumed level) with their 1-sigma."""
+        psi, std = heading_from_velocity_changes(self.accel_sums)
+        if v is None or not std <= self.config.align_max_heading_std:
+            return "align_coarse"
+        roll, pitch, yaw = quat_to_euler(nav.state.q_nb)
+        if self.tilt_std > self.config.align_tilt_std:
+            self.tilt_source = "assumed_level"
+        tilt = self._tilt()
+        return self._start_fine(nav, np.array([roll, pitch, math.remainder(yaw + psi, 2.0 * math.pi)]),
+                                np.array([tilt, tilt, std]), "acceleration", fix, omega_ib_b, v, std_pos, std_v)
 
     def _track(self, nav, fix: GnssFix, omega_ib_b: np.ndarray, v_ant_n, std_pos: np.ndarray, std_v) -> None:
         """Put the antenna at the fix and, when given, its velocity at v_ant_n [m/s]; their variances become those
@@ -455,6 +552,7 @@ class Alignment:
                         std_euler=np.asarray(std_euler, dtype=float), heading_known=True)
         nav.start_filter(initial_covariance(start, self.config), fix.t_ns)
         self.coarse = False
+        self.start_heading_std = float(std_euler[2])
         self.method = method
         nav.counters[f"align_{method}"] += 1
         self._set_state(nav, AlignState.FINE, fix.t_ns,
@@ -464,7 +562,8 @@ class Alignment:
     def status(self, nav) -> dict:
         return {"state": self.state, "method": self.method, "heading_std_rad": float(nav.std_att[2]),
                 "times_ns": dict(self.times), "tilt_source": self.tilt_source, "gyrocompass": self.gyrocompass_refusal,
-                "initial_state": self.initial_check, "waiting": self.waiting()}
+                "initial_state": self.initial_check, "waiting": self.waiting(),
+                "start_heading_std_rad": self.start_heading_std}
 
     def waiting(self) -> str:
         """While coarse: what in-motion alignment waits for ("" otherwise): the speed reached against
@@ -472,6 +571,11 @@ class Alignment:
         if not self.coarse:
             return ""
         cfg = self.config
+        if cfg.align_in_motion == "acceleration":
+            std = heading_from_velocity_changes(self.accel_sums)[1]
+            return (f"in motion (acceleration): heading 1-sigma {math.degrees(std):.1f} deg from "
+                    f"{self.accel_sums[4]:.0f} velocity changes so far, above align_max_heading_std "
+                    f"{math.degrees(cfg.align_max_heading_std):.1f} deg (it needs horizontal manoeuvres)")
         return (f"in motion: GNSS speed at most {self.speed_max:.2f} m/s so far, below align_min_speed_mps "
                 f"{cfg.align_min_speed_mps:.2f} m/s (a vehicle profile or --params file sets it)"
                 if self.speed_max < cfg.align_min_speed_mps else
@@ -486,7 +590,9 @@ class Alignment:
                 "seg": [float(x) for x in self.seg], "rest": [float(x) for x in self.rest],
                 "rest_prev": bool(self.rest_prev),
                 "prev_track": None if track is None else [int(track[0]), track[1].tolist(), track[2].tolist()],
-                "speed_max": float(self.speed_max),
+                "speed_max": float(self.speed_max), "dv_p": [float(x) for x in self.dv_p],
+                "accel_prev": None if self.accel_prev is None else list(self.accel_prev),
+                "accel_sums": [float(x) for x in self.accel_sums],
                 "checking": bool(self.checking), "initial_check": self.initial_check, "check_strike": self.check_strike,
                 "check_v_ref": None if self.check_v_ref is None else list(self.check_v_ref),
                 "check_prev": None if self.check_prev is None else [int(self.check_prev[0])] + [
@@ -499,7 +605,12 @@ class Alignment:
         self.seg, self.rest, self.rest_prev = [float(x) for x in st["seg"]], [float(x) for x in st["rest"]], \
             bool(st["rest_prev"])
         track = st["prev_track"]
-        self.speed_max = float(st.get("speed_max", 0.0))  # a checkpoint before it: the diagnostic starts again
+        # a checkpoint from before these (the course method only): they start again
+        self.speed_max = float(st.get("speed_max", 0.0))
+        self.dv_p = [float(x) for x in st.get("dv_p", (0.0, 0.0))]
+        prev = st.get("accel_prev")
+        self.accel_prev = None if prev is None else tuple(float(x) for x in prev)
+        self.accel_sums = [float(x) for x in st.get("accel_sums", (0.0,) * 5)]
         self.prev_track = None if track is None else (int(track[0]), np.array(track[1], dtype=float),
                                                       np.array(track[2], dtype=float))
         self.checking, self.initial_check, self.check_strike = bool(st["checking"]), st["initial_check"], \

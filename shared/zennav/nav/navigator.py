@@ -583,17 +583,18 @@ class Navigator:
     def _advance_coarse(self, t_ns: int, dth: tuple, dv: tuple, dt: float) -> None:
         """Coarse alignment step: the attitude from the gyro (roll and pitch hold; the yaw is unknown), the
         velocity held at the last GNSS velocity and the position dead-reckoned on it; the increments [rad, m/s]
-        are summed for levelling and gyrocompassing."""
+        are summed for levelling and gyrocompassing, the horizontal velocity change they integrate to for the
+        acceleration method."""
         s = self.state
         lat, lon, h, vn, ve, vd = s.lat, s.lon, s.h, s.vn, s.ve, s.vd
         mechanize(s, dth, dv, self._prev_dtheta, self._prev_dvel, dt)
+        self.alignment.add(dth, dv, dt, s.vn - vn, s.ve - ve)
         d_lat, d_lon, d_h = earth.ned_to_dllh((vn * dt, ve * dt, vd * dt), lat, h)
         s.lat, s.lon, s.h = lat + d_lat, lon + d_lon, h + d_h
         s.vn, s.ve, s.vd = vn, ve, vd
         self._prev_dtheta, self._prev_dvel = dth, dv
         self.t_ns = t_ns
         self._omega_dt = (dth, dt)
-        self.alignment.add(dth, dv, dt)
 
     def _additive_values(self) -> np.ndarray:
         """Nominal values of the error states after the navigation states (gyro and accel biases, augmented
