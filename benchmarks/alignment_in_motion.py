@@ -1,5 +1,6 @@
-"""In-motion alignment from an unknown heading: yaw = course against the acceleration method (GNSS velocity changes
-against the IMU's, zennav.nav.alignment.heading_from_velocity_changes), beside the heading given.
+"""In-motion alignment from an unknown heading: yaw = course, the acceleration method (GNSS velocity changes against
+the IMU's, zennav.nav.alignment.heading_from_velocity_changes) and auto (the course once the changes confirm it),
+beside the heading given.
 
 For each dataset the run starts with its initial yaw declared unknown (``zennav replay --heading-unknown``) and the
 parameter file's filter with the dataset's vehicle profile, the in-motion method forced to each of the two. Printed
@@ -61,7 +62,8 @@ def run_one(spec: str, options: dict, method: str | None) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--groups", default=",".join(GROUPS), help=f"comma-separated from {', '.join(GROUPS)}")
-    ap.add_argument("--methods", default="course,acceleration", help="in-motion methods (course, acceleration)")
+    ap.add_argument("--methods", default="course,acceleration,auto",
+                    help="in-motion methods (course, acceleration, auto)")
     args = ap.parse_args()
     methods: list[str | None] = [None, *args.methods.split(",")]
     print(f"{'group':15s} {'heading':13s} {'runs':>4s} {'left coarse':>11s} {'t [s]':>7s} {'err0 [deg]':>10s} "

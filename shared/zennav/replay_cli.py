@@ -143,7 +143,7 @@ def replay_dataset(spec: str, outages, every, out: Path | None, as_json: bool, c
         click.echo(_gnss_summary(res.status["counters"]))
     if compensator is not None and not as_json:
         click.echo(_learning_summary(metrics["compensation"], res.status["counters"]))
-    if not as_json and (heading_unknown or adaptive_r is not None):
+    if not as_json and (heading_unknown or adaptive_r is not None or res.status["alignment"]["method"] != "given"):
         click.echo(_alignment_summary(res.status, int(ds.initial.t_ns)))
     if out is not None and not as_json:
         smoothed = f", {out / 'smoothed' / 'nav.txt'}, {out / 'smoothed' / 'nav.csv'}" if smooth else ""
@@ -279,8 +279,9 @@ def _setup_logging(verbose: int) -> None:
               "and lever arm are used unchanged.")
 @click.option("--heading-unknown", is_flag=True,
               help="Ignore the dataset's initial yaw: align at rest (gyrocompassing where the gyro allows it) or in "
-              "motion from the GNSS velocity (yaw = course once faster than align_min_speed_mps: 3 m/s, the auv "
-              "profile's 1 m/s).")
+              "motion from the GNSS velocity (align_in_motion: auto, yaw = course above align_min_speed_mps once the "
+              "velocity changes confirm it, theirs where they refute it; the multirotor profile: the velocity "
+              "changes; the auv profile: the course from 1 m/s).")
 @click.option("--params", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The ins's filter parameter file (human units) [deploy/ins.yaml]: the same filter as zennav-ins.")
 @click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,
@@ -290,7 +291,8 @@ def _setup_logging(verbose: int) -> None:
                    "--constraints; default: the parameter file's (off).")
 @click.option("--profile", default=None, metavar="NAME",
               help="Vehicle profile of the parameter file (car: nhc, zupt, odo; multirotor: zupt; fixed-wing: none; "
-                   "pedestrian: zupt; auv: none, in-motion alignment from 1 m/s), 'dataset' for the dataset's "
+                   "pedestrian: zupt; auv: none, yaw = course from 1 m/s; multirotor: alignment by velocity "
+                   "changes), 'dataset' for the dataset's "
                    "vehicle, or none; sets the constraints and the settings it lists. Default: the parameter file's "
                    "constraints.profile (none).")
 @click.option("--constraints", "constraints", default=None, metavar="LIST",

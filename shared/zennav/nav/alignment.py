@@ -1,5 +1,6 @@
 """Coarse alignment of the strapdown INS: static levelling and gyrocompassing, and in-motion yaw and pitch
-from the GNSS velocity (seed 002) or its changes. Frames: n = NED, b = FRD, Euler ZYX (roll, pitch, yaw) [rad], SI units.
+from the GNSS velocity (seed 002) or its changes. Frames: n = NED, b = FRD, Euler ZYX (roll, pitch, yaw) [rad],
+SI units.
 
 Static (Groves 2013, "Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems", 2nd ed.,
 section 5.6.2; section 14.4.1 for the error budget). At rest f_b = C_bn (0, 0, -g) and
@@ -47,7 +48,8 @@ A vehicle that does not move along its x axis (a multirotor flies sideways and b
 accelerations (align_in_motion: acceleration; Groves 2013 section 14.4.2): between two fixes the IMU's horizontal
 velocity change, integrated in the engine's frame of unknown yaw with the known roll and pitch, is the GNSS's rotated
 by the unknown yaw offset; its least-squares value over every pair of fixes since the start
-(heading_from_velocity_changes) and its 1-sigma hand over once that is below align_max_heading_std.
+(heading_from_velocity_changes) and its 1-sigma hand over once that is below align_max_heading_std. align_in_motion
+auto (the default) takes the course once the velocity changes confirm it and theirs where they refute it.
 Rest, for levelling and gyrocompassing, is a GNSS speed that reads rest and a body that did not turn since the last
 fix (turned): a vehicle tilts as it starts to move while its speed still reads rest.
 """
@@ -162,6 +164,7 @@ def turned(seg, noise: ImuNoise) -> bool:
     return math.sqrt(seg[0] ** 2 + seg[1] ** 2 + seg[2] ** 2) > at_rest
 
 
+AUTO_CONFIRM_STD = math.radians(30.0)  # align_in_motion auto: the velocity changes' 1-sigma that can confirm a course
 ACCEL_MIN_PAIRS = 10  # pairs of fixes before the acceleration method trusts its own residuals for its 1-sigma
 
 
@@ -467,19 +470,58 @@ class Alignment:
                                       cfg.align_max_heading_std)
                 return self._start_fine(nav, al.euler, al.std_euler, "gyrocompass", fix, omega_ib_b, v, std_pos,
                                         std_v)
-        if cfg.align_in_motion == "acceleration":
-            return self._acceleration_alignment(nav, fix, omega_ib_b, v, std_pos, std_v)
-        if v is None or not math.hypot(v[0], v[1]) >= cfg.align_min_speed_mps:  # not yet fast enough
+        return self._in_motion(nav, fix, omega_ib_b, v, std_pos, std_v)
+
+    def _in_motion(self, nav, fix: GnssFix, omega_ib_b, v, std_pos, std_v) -> str:
+        """In-motion hand-over by align_in_motion: "course", "acceleration", or "auto": the course once the velocity
+        changes confirm it (their heading known within AUTO_CONFIRM_STD and the course within 3 sigma of both from
+        it; refuted: a vehicle reversing or not moving along its x axis, counted align_course_refuted), else the
+        velocity changes' heading once within align_max_heading_std."""
+        how = self.config.align_in_motion
+        course = self._course_candidate(nav, v, std_v) if how != "acceleration" else None
+        accel = self._acceleration_candidate(nav) if how != "course" and v is not None else None
+        if how == "auto" and course is not None:
+            psi, std = heading_from_velocity_changes(self.accel_sums)
+            yaw = quat_to_euler(nav.state.q_nb)[2] + psi
+            if not std <= AUTO_CONFIRM_STD:
+                course = None
+            elif abs(math.remainder(course[0][2] - yaw, 2.0 * math.pi)) > 3.0 * math.hypot(course[1][2], std):
+                nav.counters["align_course_refuted"] += 1
+                course = None
+        chosen = course or accel
+        if chosen is None:
             return "align_coarse"
+        euler, std_euler, method, tilt_source = chosen
+        if tilt_source:
+            self.tilt_source = tilt_source
+        return self._start_fine(nav, euler, std_euler, method, fix, omega_ib_b, v, std_pos, std_v)
+
+    def _course_candidate(self, nav, v, std_v):
+        """(euler, std_euler, "in_motion", tilt source or "") of yaw = course once fast enough and within
+        align_max_heading_std; None otherwise."""
+        cfg = self.config
+        if v is None or not math.hypot(v[0], v[1]) >= cfg.align_min_speed_mps:  # not yet fast enough
+            return None
         euler, std_euler = course_alignment(v, std_v, cfg.align_course_std, cfg.align_tilt_std)
-        if std_euler[2] <= cfg.align_max_heading_std:
-            if self.tilt_std < cfg.align_tilt_std:  # a better roll and pitch than 0 and the climb angle
-                euler[:2] = quat_to_euler(nav.state.q_nb)[:2]
-                std_euler[:2] = self.tilt_std
-            else:
-                self.tilt_source = "climb_angle"
-            return self._start_fine(nav, euler, std_euler, "in_motion", fix, omega_ib_b, v, std_pos, std_v)
-        return "align_coarse"
+        if not std_euler[2] <= cfg.align_max_heading_std:
+            return None
+        if self.tilt_std < cfg.align_tilt_std:  # a better roll and pitch than 0 and the climb angle
+            euler[:2] = quat_to_euler(nav.state.q_nb)[:2]
+            std_euler[:2] = self.tilt_std
+            return euler, std_euler, "in_motion", ""
+        return euler, std_euler, "in_motion", "climb_angle"
+
+    def _acceleration_candidate(self, nav):
+        """(euler, std_euler, "acceleration", tilt source or "") once the rotation between the IMU's and the GNSS's
+        horizontal velocity changes is known within align_max_heading_std: the yaw the engine's plus it, roll and
+        pitch the engine's (levelled, given or assumed level) with their 1-sigma; None before."""
+        psi, std = heading_from_velocity_changes(self.accel_sums)
+        if not std <= self.config.align_max_heading_std:
+            return None
+        roll, pitch, yaw = quat_to_euler(nav.state.q_nb)
+        tilt = self._tilt()
+        return (np.array([roll, pitch, math.remainder(yaw + psi, 2.0 * math.pi)]), np.array([tilt, tilt, std]),
+                "acceleration", "assumed_level" if self.tilt_std > self.config.align_tilt_std else "")
 
     def _tilt(self) -> float:
         """Roll/pitch 1-sigma [rad] the acceleration method works with: the known one, at most align_tilt_std (an
@@ -508,20 +550,6 @@ class Alignment:
         sums[2] += a2 / var
         sums[3] += (b[0] ** 2 + b[1] ** 2) / var
         sums[4] += 1.0
-
-    def _acceleration_alignment(self, nav, fix: GnssFix, omega_ib_b, v, std_pos, std_v) -> str:
-        """In motion by velocity changes: once the rotation between the IMU's and the GNSS's horizontal velocity
-        changes is known within align_max_heading_std, the yaw is the engine's plus it, roll and pitch the engine's
-        (levelled, given or assumed level) with their 1-sigma."""
-        psi, std = heading_from_velocity_changes(self.accel_sums)
-        if v is None or not std <= self.config.align_max_heading_std:
-            return "align_coarse"
-        roll, pitch, yaw = quat_to_euler(nav.state.q_nb)
-        if self.tilt_std > self.config.align_tilt_std:
-            self.tilt_source = "assumed_level"
-        tilt = self._tilt()
-        return self._start_fine(nav, np.array([roll, pitch, math.remainder(yaw + psi, 2.0 * math.pi)]),
-                                np.array([tilt, tilt, std]), "acceleration", fix, omega_ib_b, v, std_pos, std_v)
 
     def _track(self, nav, fix: GnssFix, omega_ib_b: np.ndarray, v_ant_n, std_pos: np.ndarray, std_v) -> None:
         """Put the antenna at the fix and, when given, its velocity at v_ant_n [m/s]; their variances become those
@@ -571,11 +599,12 @@ class Alignment:
         if not self.coarse:
             return ""
         cfg = self.config
-        if cfg.align_in_motion == "acceleration":
+        if cfg.align_in_motion != "course":
             std = heading_from_velocity_changes(self.accel_sums)[1]
-            return (f"in motion (acceleration): heading 1-sigma {math.degrees(std):.1f} deg from "
+            return (f"in motion ({cfg.align_in_motion}): heading 1-sigma {math.degrees(std):.1f} deg from "
                     f"{self.accel_sums[4]:.0f} velocity changes so far, above align_max_heading_std "
-                    f"{math.degrees(cfg.align_max_heading_std):.1f} deg (it needs horizontal manoeuvres)")
+                    f"{math.degrees(cfg.align_max_heading_std):.1f} deg (it needs horizontal manoeuvres"
+                    + ("; yaw = course only where they confirm it)" if cfg.align_in_motion == "auto" else ")"))
         return (f"in motion: GNSS speed at most {self.speed_max:.2f} m/s so far, below align_min_speed_mps "
                 f"{cfg.align_min_speed_mps:.2f} m/s (a vehicle profile or --params file sets it)"
                 if self.speed_max < cfg.align_min_speed_mps else

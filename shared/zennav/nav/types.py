@@ -245,8 +245,10 @@ class NavConfig:
 
     Alignment (zennav.nav.alignment; used when the initial heading is unknown, InitialState.heading_is_known):
     align_in_motion: how the heading is found in motion: "course" (yaw = course, pitch = climb angle: a vehicle
-        moving along its body x axis) or "acceleration" (the GNSS velocity changes against the IMU's in the
-        levelled frame: any direction of motion, e.g. a multirotor; it needs horizontal accelerations).
+        moving along its body x axis), "acceleration" (the GNSS velocity changes against the IMU's in the
+        levelled frame: any direction of motion, e.g. a multirotor; it needs horizontal accelerations) or "auto"
+        (the course where the velocity changes confirm it, theirs where they refute it: a vehicle reversing, or one
+        that does not move along x; nothing before they are known).
     align_min_speed_mps: GNSS horizontal speed [m/s] above which yaw = course and pitch = climb angle (in motion).
     align_course_std / align_tilt_std: 1-sigma [rad] of heading minus course (sideslip, yaw mounting) and of
         roll 0 / pitch = climb angle for a ground vehicle when no better tilt is known.
@@ -281,7 +283,7 @@ class NavConfig:
     gate_reset_unsteady_s: float = 30.0
     reacquire_fixes: int = 3
     use_gnss_velocity: bool = True
-    align_in_motion: str = "course"
+    align_in_motion: str = "auto"
     align_min_speed_mps: float = 3.0
     align_course_std: float = math.radians(2.0)
     align_tilt_std: float = math.radians(5.0)
