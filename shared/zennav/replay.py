@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from itertools import repeat
@@ -118,16 +118,25 @@ class EventPlan:
     k1: int
     inserts: list[tuple[int, str, int]]
 
-    def events(self) -> list[tuple[str, int]]:
-        """The plan as one list of (kind, index), IMU samples included."""
-        events: list[tuple[str, int]] = []
-        done = self.k0  # IMU samples before this one are in events
+    def __iter__(self) -> Iterator[tuple[str, int]]:
+        """The plan as (kind, index), IMU samples included, made as they are taken (an hour at 200 Hz as a list
+        of tuples is about 70 MB)."""
+        done = self.k0  # IMU samples before this one are out
         for k, kind, index in self.inserts:
-            events.extend(zip(repeat("imu"), range(done, k)))
+            yield from zip(repeat("imu"), range(done, k))
             done = k
-            events.append((kind, index))
-        events.extend(zip(repeat("imu"), range(done, self.k1)))
-        return events
+            yield kind, index
+        yield from zip(repeat("imu"), range(done, self.k1))
+
+    def __len__(self) -> int:
+        return self.k1 - self.k0 + len(self.inserts)
+
+    def counts(self) -> dict[str, int]:
+        """{kind: events of that kind} (imu first)."""
+        out = {"imu": self.k1 - self.k0}
+        for _, kind, _ in self.inserts:
+            out[kind] = out.get(kind, 0) + 1
+        return out
 
 
 def _inserts(ds: Dataset, t_imu: np.ndarray, k0: int, k1: int, t_end: int,
@@ -194,16 +203,17 @@ def sensor_events(
     ds: Dataset,
     outages: Sequence[tuple[float, float]] = (),
     outage_every: tuple[float, float, float] | None = None,
-) -> tuple[list[tuple[int, int]], list[tuple[str, int]]]:
+) -> tuple[list[tuple[int, int]], EventPlan]:
     """Which IMU samples, GNSS fixes and aid samples (AID_STREAMS) a run feeds the engine, in order: (windows,
-    events), events being (kind, k) indices into ds.imu / ds.gnss / ds.dvl / ds.depth. IMU samples after the
+    events), events (an EventPlan: iterable again and again, not a list) yielding (kind, k) indices into ds.imu /
+    ds.gnss / ds.dvl / ds.depth. IMU samples after the
     initial-state time up to config.end_t_ns; GNSS fixes after the initial time, outside the outage windows, not
     after the last IMU sample; aid samples likewise, outages or not. A fix or aid sample goes before the first
     IMU sample at or after its time (in time order; ties: GNSS, DVL, depth): the engine fuses a fix at its time
     within that IMU sample, an aid sample right after it (held until then). run_replay (event_plan, the same
     selection without a list of the IMU samples) and the ingest service both take their sequence from here."""
     plan = event_plan(ds, outages, outage_every)
-    return plan.windows, plan.events()
+    return plan.windows, plan
 
 
 def run_replay(

@@ -21,6 +21,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -83,7 +84,7 @@ class RunRecorder:
         assert self.rec is not None
         self.rec.add_message(key, msg)
 
-    def finish(self, ds, events: list, reports: list) -> None:
+    def finish(self, ds, events: Iterable[tuple[str, int]], reports: list) -> None:
         """The GNSS fixes, DVL and depth samples fed and the aid reports into the MCAP (after the solutions), and
         close it."""
         if self.rec is None:

@@ -48,7 +48,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 from . import messages as M
 from .params import sensor_map
@@ -58,9 +58,10 @@ RESYNC_AFTER = 8  # consecutive IMU samples refused as running backwards that re
 RESUME_END = 1 << 62  # StreamFollower.hole's last cseq for a resume not yet applied (where the stream is: unknown)
 
 
-def stream_messages(ds, windows: list, events: list, batch: int = 1) -> Iterator[tuple[str, dict]]:
+def stream_messages(ds, windows: list, events: Iterable[tuple[str, int]], batch: int = 1) -> Iterator[tuple[str, dict]]:
     """(kind, message) of the sensor stream of a run (see the module docstring), kind "stream", "imu", "gnss",
-    "dvl" or "depth" (the key it goes on); the publisher stamps src, seq and pub_ns. counts: imu and gnss, and
+    "dvl" or "depth" (the key it goes on); events: zennav.replay.sensor_events' (or a list: iterated twice, for the
+    counts and the messages); the publisher stamps src, seq and pub_ns. counts: imu and gnss, and
     each aid stream the dataset has (zennav.messages.AID_STREAMS). batch > 1: up to batch consecutive IMU samples
     per imu_batch message, cut before every other sample (the same samples, cseqs and order)."""
     imu, gnss = ds.imu, ds.gnss

@@ -74,7 +74,9 @@ def test_aid_samples_go_before_the_imu_sample_that_reaches_their_time():
     sample; GNSS outages do not withhold them) comes right before the first IMU sample at or after its time; the
     stream counts them, and an imu_batch is cut before each."""
     ds = auv_like()
-    windows, events = sensor_events(ds, [(10.0, 5.0)])
+    windows, plan = sensor_events(ds, [(10.0, 5.0)])
+    events = list(plan)
+    assert len(events) == len(plan) and plan.counts() == {k: sum(e[0] == k for e in events) for k in plan.counts()}
     t_imu = ds.imu.t_ns
     for i, (kind, k) in enumerate(events):
         if kind in M.AID_STREAMS:

@@ -153,7 +153,7 @@ def _run(run, args, speed: float, acks: EndAcks, pubs: dict, aid_publisher, stat
             receiver = GnssReceiver(args.gnss_receiver, int(ds.initial.t_ns), silence_s=args.gnss_silence,
                                     log=log).start()
             run.counters = lambda: {**stats, **{f"receiver_{k}": v for k, v in receiver.counts.items()}}
-        n = Counter(e[0] for e in events)
+        n = Counter(events.counts())
         aids = [a for a in AID_STREAMS if getattr(ds, a) is not None]
         if aids and receiver is not None:
             raise ValueError(f"--gnss-receiver streams IMU and GNSS only: {ds.name} has {', '.join(aids)}")

@@ -17,17 +17,22 @@ import collections
 import queue
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import replace
+from typing import TYPE_CHECKING
 
 from .. import messages as M
 from ..stream import stream_messages
 from .receiver import GnssReceiver
 
+if TYPE_CHECKING:
+    from ..replay import EventPlan
 
-def live_messages(ds, windows: list, events: list, receiver: GnssReceiver, speed: float, latency_s: float,
+
+def live_messages(ds, windows: list, events: EventPlan, receiver: GnssReceiver, speed: float, latency_s: float,
                   stopping: Callable[[], bool] = lambda: False) -> Iterator[tuple[str, dict]]:
     """(kind, message) of the stream (as zennav.stream.stream_messages) with the dataset's GNSS replaced by the
     receiver's fixes; events: zennav.replay.sensor_events' selection (its GNSS entries are ignored)."""
-    imu_events = [e for e in events if e[0] == "imu"]
+    imu_events = replace(events, inserts=[e for e in events.inserts if e[1] != "gnss"])
     pending: collections.deque = collections.deque()
     counts = receiver.events
     cseq = 0
