@@ -279,9 +279,9 @@ def _setup_logging(verbose: int) -> None:
               "and lever arm are used unchanged.")
 @click.option("--heading-unknown", is_flag=True,
               help="Ignore the dataset's initial yaw: align at rest (gyrocompassing where the gyro allows it) or in "
-              "motion from the GNSS velocity (align_in_motion: auto, yaw = course above align_min_speed_mps once the "
-              "velocity changes confirm it, theirs where they refute it; the multirotor profile: the velocity "
-              "changes; the auv profile: the course from 1 m/s).")
+              "motion from the GNSS velocity (align_in_motion: yaw = course above align_min_speed_mps, 3 m/s; the "
+              "multirotor profile: from the velocity changes against the IMU's; the auv profile: the course from 1 "
+              "m/s).")
 @click.option("--params", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The ins's filter parameter file (human units) [deploy/ins.yaml]: the same filter as zennav-ins.")
 @click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,

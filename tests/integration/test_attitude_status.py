@@ -118,7 +118,7 @@ def test_monitor_shows_alignment_coarse_fine_aligned_and_live_r(cluster):
     assert seen == ["coarse", "fine", "aligned"], seen
     nav = last["nav"]
     al = nav["alignment"]
-    assert al["state"] == "aligned" and al["method"] == "acceleration" and al["heading_std_deg"] < 0.5
+    assert al["state"] == "aligned" and al["method"] == "in_motion" and al["heading_std_deg"] < 0.5
     assert 0 < al["times_s"]["fine"] < al["times_s"]["aligned"] <= 100
     assert nav["adaptive_r"] is True and nav["gnss_state"] == "valid"
     for src in ("gnss_pos", "gnss_vel"):

@@ -102,8 +102,7 @@ def test_in_motion_alignment_from_unknown_heading_within_60s_of_driving():
         bad = np.flatnonzero(err >= 1.0)
         after_moving.append(t_s[bad[-1] + 1] - t_move)
         al = res.status["alignment"]
-        # auto: the velocity changes as the car drives off, or the course once it is fast enough
-        assert al["method"] in ("in_motion", "acceleration") and al["state"] == "aligned", (seed, al)
+        assert al["method"] == "in_motion" and al["state"] == "aligned", (seed, al)
         assert al["tilt_source"] == "levelling"  # the car stands still first
         # Nothing was integrated with the unknown heading: while coarse the position stayed on the GNSS track.
         coarse = res.t_ns < al["times_ns"]["fine"]
@@ -197,9 +196,9 @@ def test_cli_heading_unknown_and_adaptive_r_on_kf_gins_files(tmp_path):
     res = CliRunner().invoke(main, ["replay", "--kf-gins-config", str(yaml_path), "--heading-unknown", "--adaptive-r",
                                     "--out", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
-    assert "alignment: aligned (acceleration;" in res.output and "gnss_pos R diag" in res.output
+    assert "alignment: aligned (in_motion;" in res.output and "gnss_pos R diag" in res.output
     engine = json.loads((tmp_path / "out" / "metrics.json").read_text())["engine"]
-    assert engine["adaptive_r"] is True and engine["alignment"]["method"] == "acceleration"
+    assert engine["adaptive_r"] is True and engine["alignment"]["method"] == "in_motion"
     assert engine["counters"]["gnss_align_coarse"] >= 2 and engine["measurement_noise"]["gnss_pos"]["k"] > 20
 
 
@@ -224,7 +223,6 @@ def test_a_slow_auv_aligns_in_motion_with_its_profile_and_says_what_it_waits_for
 
     ds = load_dataset("sim:auv", duration_s=200.0)
     ds.initial = heading_unknown(ds.initial, np.random.default_rng(3))
-    ds.config = ds.config.with_(align_in_motion="course")
     waiting = run_replay(ds).status["alignment"]
     assert waiting["state"] == "coarse" and waiting["method"] == ""
     speed = float(waiting["waiting"].split("at most ")[1].split(" m/s")[0])

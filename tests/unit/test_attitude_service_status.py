@@ -258,7 +258,7 @@ def test_ins_status_carries_alignment_and_live_r_and_validates():
     assert len(r["R_diag"]) == 3 and min(r["R_diag"]) > 0 and len(r["ratio"]) == 3
     assert r["branch"] in ("inflate", "fading")
     al = last["alignment"]
-    assert al["method"] == "acceleration" and al["heading_std_rad"] < np.radians(0.5)  # auto: the car drives off
+    assert al["method"] == "in_motion" and al["heading_std_rad"] < np.radians(0.5)
     assert al["times_ns"]["coarse"] < al["times_ns"]["fine"] < al["times_ns"]["aligned"]
     v = M.Validator()
     for m in st:

@@ -139,7 +139,7 @@ def test_restore_mid_coarse_alignment(car):
     assert aligned is not None and aligned > 400, "the car must stay a while in coarse alignment"
     nav, state = assert_continues_exactly(car, car.config, initial, aligned + 2000, aligned - 300)
     assert nav.align_state == "coarse" and state["alignment"]["prev_track"] is not None
-    assert state["alignment"]["accel_sums"][4] > 5  # the velocity changes so far go on (align_in_motion auto)
+    assert state["alignment"]["accel_sums"][4] > 5  # the velocity changes so far go on
 
 
 def test_restore_with_learning_and_answers(car):

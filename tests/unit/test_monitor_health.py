@@ -73,3 +73,16 @@ def test_trainer_and_predictor_progress_and_error_state():
     assert f.health("predictor", t + 6 * S)[0] == "error"
     table = format_table(f.state.snapshot(t + 6 * S))
     assert "degraded" in table and "error" in table
+
+
+def test_the_table_says_what_the_alignment_waits_for():
+    from zennav.nodes.monitor import format_table
+
+    waiting = "in motion: GNSS speed at most 1.66 m/s so far, below align_min_speed_mps 3.00 m/s"
+    al = {"state": "coarse", "method": "", "heading_std_deg": 103.9, "tilt_source": "levelling",
+          "times_s": {"coarse": 0.0}, "initial_state": "", "waiting": waiting}
+    snap = {"vehicle": "auv", "window_s": 5, "services": {}, "nav": {"gnss_state": "valid", "alignment": al},
+            "navs": {}, "attitude": None, "aid": {}, "models": {}, "keys": {}}
+    assert f"alignment waits for {waiting}" in format_table(snap)
+    al["waiting"] = ""
+    assert "waits for" not in format_table(snap)

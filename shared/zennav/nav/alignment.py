@@ -49,7 +49,8 @@ accelerations (align_in_motion: acceleration; Groves 2013 section 14.4.2): betwe
 velocity change, integrated in the engine's frame of unknown yaw with the known roll and pitch, is the GNSS's rotated
 by the unknown yaw offset; its least-squares value over every pair of fixes since the start
 (heading_from_velocity_changes) and its 1-sigma hand over once that is below align_max_heading_std. align_in_motion
-auto (the default) takes the course once the velocity changes confirm it and theirs where they refute it.
+auto takes the course once the velocity changes confirm it and theirs where they refute it (it waits for them: a car
+joining at a steady speed aligns later than by its course).
 Rest, for levelling and gyrocompassing, is a GNSS speed that reads rest and a body that did not turn since the last
 fix (turned): a vehicle tilts as it starts to move while its speed still reads rest.
 """

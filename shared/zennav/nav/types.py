@@ -283,7 +283,7 @@ class NavConfig:
     gate_reset_unsteady_s: float = 30.0
     reacquire_fixes: int = 3
     use_gnss_velocity: bool = True
-    align_in_motion: str = "auto"
+    align_in_motion: str = "course"
     align_min_speed_mps: float = 3.0
     align_course_std: float = math.radians(2.0)
     align_tilt_std: float = math.radians(5.0)

@@ -278,6 +278,8 @@ def format_table(snap: dict) -> str:
                          f"{al['heading_std_deg']:.3f} deg  tilt from {al['tilt_source'] or '-'}  ({times})")
             if al.get("initial_state"):
                 lines.append(f"  initial state {al['initial_state']}"[:200])
+            if al.get("waiting"):
+                lines.append(f"  alignment waits for {al['waiting']}"[:200])
         if "adaptive_r" in nav:
             lines.append(f"  adaptive R {'on' if nav['adaptive_r'] else 'off'}")
         for src, r in (nav.get("measurement_noise") or {}).items():
