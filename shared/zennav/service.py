@@ -169,7 +169,13 @@ class ServiceRunner:
         return 0
 
     def close(self) -> None:
+        """Last status, then the bus closed. The heartbeat thread is joined first: a daemon thread still inside a
+        zenoh call when the interpreter finalizes aborts the process ("FATAL: exception not rethrown", exit -6,
+        seen once on an ingest that had logged its stop)."""
         self._stop.set()
+        hb = self._hb
+        if hb is not None and hb is not threading.current_thread():
+            hb.join(2.0)
         try:
             self.state = "stopping"
             self.heartbeat()
