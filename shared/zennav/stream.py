@@ -48,26 +48,29 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 from . import messages as M
 from .params import sensor_map
+
+if TYPE_CHECKING:
+    from .replay import EventPlan
 
 DROPS = ("foreign_source", "no_stream", "duplicate_start", "late_join", "takeover_refused")
 RESYNC_AFTER = 8  # consecutive IMU samples refused as running backwards that re-anchor the time chain
 RESUME_END = 1 << 62  # StreamFollower.hole's last cseq for a resume not yet applied (where the stream is: unknown)
 
 
-def stream_messages(ds, windows: list, events: Iterable[tuple[str, int]], batch: int = 1) -> Iterator[tuple[str, dict]]:
+def stream_messages(ds, windows: list, events: EventPlan, batch: int = 1) -> Iterator[tuple[str, dict]]:
     """(kind, message) of the sensor stream of a run (see the module docstring), kind "stream", "imu", "gnss",
-    "dvl" or "depth" (the key it goes on); events: zennav.replay.sensor_events' (or a list: iterated twice, for the
-    counts and the messages); the publisher stamps src, seq and pub_ns. counts: imu and gnss, and
+    "dvl" or "depth" (the key it goes on); events: zennav.replay.sensor_events'; the publisher stamps src, seq and
+    pub_ns. counts: imu and gnss, and
     each aid stream the dataset has (zennav.messages.AID_STREAMS). batch > 1: up to batch consecutive IMU samples
     per imu_batch message, cut before every other sample (the same samples, cseqs and order)."""
     imu, gnss = ds.imu, ds.gnss
     counts = dict.fromkeys(("imu", "gnss", *(a for a in M.AID_STREAMS if getattr(ds, a) is not None)), 0)
-    for e in events:
-        counts[e[0]] += 1
+    counts.update(events.counts())
     yield "stream", M.make("stream_start", int(ds.initial.t_ns), cseq=0, dataset=ds.name,
                            config=sensor_map(ds.config), initial=M.dataclass_to_map(ds.initial), counts=counts,
                            outages=[[int(a), int(b)] for a, b in windows])

@@ -29,8 +29,6 @@ validation per N samples, the same samples, cseqs and order (consumers expand it
 from __future__ import annotations
 
 import argparse
-import logging
-import os
 import sys
 import threading
 from collections import Counter
@@ -40,7 +38,7 @@ from zennav.datasets.errors import DataError
 from zennav.messages import AID_STREAMS
 from zennav.nodes.ingest import History, make_hold, outage_arg, stream, wait_for_consumers, wait_for_end
 from zennav.replay import parse_outage, parse_outage_every, sensor_events
-from zennav.service import EndAcks, ServiceRunner, add_bus_args
+from zennav.service import EndAcks, ServiceRunner, add_bus_args, exit_process
 from zennav.stream import stream_messages
 
 
@@ -128,17 +126,9 @@ def main(argv=None) -> int:
     worker.join(args.stop_timeout if run.stopping else None)
     if worker.is_alive():
         log.error("stopped while a publish was blocked by a stalled consumer: exiting without draining")
-        logging.shutdown()
-        os._exit(1)
+        exit_process(1)
     run.close()
-    code = result[0] if result else 1
-    # End here rather than in the interpreter's finalization: in 2 of about 8 full test runs an ingest that had
-    # closed its session and logged its stop then aborted ("FATAL: exception not rethrown", exit -6), a zenoh
-    # thread meeting the finalizing interpreter. Nothing is left to run: the session is closed, the logs flushed.
-    logging.shutdown()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    exit_process(result[0] if result else 1)  # not through the interpreter's finalization (exit_process)
 
 
 def _run(run, args, speed: float, acks: EndAcks, pubs: dict, aid_publisher, stats: dict) -> int:

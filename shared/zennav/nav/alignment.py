@@ -536,19 +536,18 @@ class Alignment:
         inverse variance of b - R a per axis: the two fixes' velocity variances, the tilt error times g over dt, the
         accelerometer noise and bias over dt."""
         a, self.dv_p = self.dv_p, [0.0, 0.0]
-        prev = self.accel_prev
-        self.accel_prev = None if v is None else (float(v[0]), float(v[1]), float(max(std_v[0], std_v[1])))
-        if prev is None or v is None or dt <= 0.0:
+        cur = None if v is None else (float(v[0]), float(v[1]), float(max(std_v[0], std_v[1])))
+        prev, self.accel_prev = self.accel_prev, cur
+        if prev is None or cur is None or dt <= 0.0:
             return
         noise = self.config.imu_noise
-        var = (prev[2] ** 2 + self.accel_prev[2] ** 2 + (earth.G0 * self._tilt() * dt) ** 2  # type: ignore[index]
-               + noise.vrw**2 * dt + (noise.accel_bias_std * dt) ** 2)
-        b = (v[0] - prev[0], v[1] - prev[1])
-        a2 = a[0] ** 2 + a[1] ** 2
+        var = (prev[2] ** 2 + cur[2] ** 2 + (earth.G0 * self._tilt() * dt) ** 2 + noise.vrw**2 * dt
+               + (noise.accel_bias_std * dt) ** 2)
+        b = (cur[0] - prev[0], cur[1] - prev[1])
         sums = self.accel_sums
         sums[0] += (a[0] * b[0] + a[1] * b[1]) / var
         sums[1] += (a[0] * b[1] - a[1] * b[0]) / var
-        sums[2] += a2 / var
+        sums[2] += (a[0] ** 2 + a[1] ** 2) / var
         sums[3] += (b[0] ** 2 + b[1] ** 2) / var
         sums[4] += 1.0
 
