@@ -1,5 +1,5 @@
 """In-motion alignment from an unknown heading: yaw = course, the acceleration method (GNSS velocity changes against
-the IMU's, zennav.nav.alignment.heading_from_velocity_changes) and auto (the course once the changes confirm it),
+the IMU's, zennav.nav.alignment.heading_from_vector_pairs) and auto (the course once the changes confirm it),
 beside the heading given.
 
 For each dataset the run starts with its initial yaw declared unknown (``zennav replay --heading-unknown``) and the
@@ -30,6 +30,7 @@ GROUPS: dict[str, Callable[[], list[tuple[str, dict]]]] = {
     "ansfl": lambda: [(s, {}) for s in ansfl_specs()],
     "sim-multirotor": lambda: [("sim:multirotor", {"seed": k}) for k in range(5)],
     "sim-car": lambda: [("sim:car", {"seed": k, "duration_s": 300.0}) for k in range(5)],
+    "sim-auv": lambda: [("sim:auv", {"seed": k}) for k in range(5)],
     "akit": lambda: [(s, {}) for s in akit_specs()],
 }
 
@@ -53,9 +54,14 @@ def run_one(spec: str, options: dict, method: str | None) -> dict:
     t_fine = al["times_ns"].get("fine", al["times_ns"].get("aligned")) if method is not None else int(res.t_ns[0])
     if out["left_coarse"] and t_fine is not None:
         i = int(np.searchsorted(res.t_ns, t_fine))
-        out.update(t_s=(t_fine - int(res.t_ns[0])) / 1e9, err0=float(err[min(i, len(err) - 1)]),
+        if method is None:
+            err0 = float(err[min(i, len(err) - 1)])
+        else:  # the heading handed over, before any update at the same epoch (a DVL sample's)
+            yaw = np.interp(t_fine, truth.t_ns, np.unwrap(truth.euler[:, 2]))
+            err0 = math.degrees(abs(float(wrap_angle(al["start_heading_rad"] - yaw))))
+        out.update(t_s=(t_fine - int(res.t_ns[0])) / 1e9, err0=err0,
                    after=float(np.median(err[i:])) if i < len(err) else math.nan,
-                   ratio=float(err[min(i, len(err) - 1)] / math.degrees(al["start_heading_std_rad"])))
+                   ratio=err0 / math.degrees(al["start_heading_std_rad"]))
     return out
 
 
@@ -63,7 +69,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--groups", default=",".join(GROUPS), help=f"comma-separated from {', '.join(GROUPS)}")
     ap.add_argument("--methods", default="course,acceleration,auto",
-                    help="in-motion methods (course, acceleration, auto)")
+                    help="in-motion methods (course, acceleration, auto, dvl)")
     args = ap.parse_args()
     methods: list[str | None] = [None, *args.methods.split(",")]
     print(f"{'group':15s} {'heading':13s} {'runs':>4s} {'left coarse':>11s} {'t [s]':>7s} {'err0 [deg]':>10s} "

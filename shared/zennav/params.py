@@ -72,7 +72,7 @@ FILTER: dict[str, Param] = {
     # covariance propagation
     "cov_interval_s": Param("covariance", "s"),
     # alignment
-    "align_in_motion": Param("alignment", "", "choice", choices=("course", "acceleration", "auto")),
+    "align_in_motion": Param("alignment", "", "choice", choices=("course", "acceleration", "auto", "dvl")),
     "align_min_speed_mps": Param("alignment", "m/s"),
     "align_course_std": Param("alignment", "deg", to_si=_DEG),
     "align_tilt_std": Param("alignment", "deg", to_si=_DEG),

@@ -221,3 +221,28 @@ def test_loader_records_anomalies_and_rejects_bad_options():
         registry.load_dataset("akit:Trajectory14")
     assert registry.vehicle_of("akit:Trajectory3") == "auv"
     assert "akit:Trajectory13" in registry.available()
+
+
+@needs_data
+def test_heading_unknown_aligns_by_the_dvl_with_the_auv_profile():
+    """A-KIT, heading declared unknown, the auv profile (align_in_motion dvl): at the first fix, the heading handed
+    over from the DVL's body velocity against the derived GNSS velocity is within 3 of its sigma and 3 deg of the
+    reference on T1, T7 and T9, where yaw = course is 6, 9 and 17 deg off (the AUV crabs)."""
+    import math
+    from dataclasses import replace
+
+    from zennav.params import load_filter_params, nav_config
+    from zennav.replay import run_replay
+
+    for n in (1, 7, 9):
+        ds = registry.load_dataset(f"akit:Trajectory{n}")
+        ds.initial = replace(ds.initial, heading_known=False)
+        ds.config = nav_config(ds.config, load_filter_params(None, "auv"))
+        got = {}
+        for method in ("course", "dvl"):
+            al = run_replay(replace(ds, config=ds.config.with_(align_in_motion=method))).status["alignment"]
+            yaw = np.interp(al["times_ns"]["fine"], ds.truth.t_ns, np.unwrap(ds.truth.euler[:, 2]))
+            got[method] = (math.degrees(abs(wrap_angle(al["start_heading_rad"] - yaw))),
+                           math.degrees(al["start_heading_std_rad"]), al["method"])
+        assert got["course"][2] == "in_motion" and got["course"][0] > 5.0, (n, got)
+        assert got["dvl"][2] == "dvl" and got["dvl"][0] < min(3.0, 3.0 * got["dvl"][1]), (n, got)

@@ -172,7 +172,8 @@ def test_comma2k19_has_rear_wheel_speeds():
 def test_profiles_are_parsed_and_applied(tmp_path):
     assert {name: p.constraints for name, p in load_profiles().items()} == {
         "car": ("nhc", "zupt", "odo"), "multirotor": ("zupt",), "fixed-wing": (), "pedestrian": ("zupt",), "auv": ()}
-    assert load_profiles()["auv"].settings == (("align_min_speed_mps", 1.0), ("align_course_std", math.radians(5.0)))
+    assert load_profiles()["auv"].settings == (("align_in_motion", "dvl"), ("align_min_speed_mps", 1.0),
+                                               ("align_course_std", math.radians(5.0)))
     assert load_profiles()["multirotor"].settings == (("align_in_motion", "acceleration"),)
     assert constraint_flags(["zupt"]) == {"nhc": False, "zupt": True, "odometer": False}
     shipped = load_filter_params()

@@ -48,9 +48,14 @@ A vehicle that does not move along its x axis (a multirotor flies sideways and b
 accelerations (align_in_motion: acceleration; Groves 2013 section 14.4.2): between two fixes the IMU's horizontal
 velocity change, integrated in the engine's frame of unknown yaw with the known roll and pitch, is the GNSS's rotated
 by the unknown yaw offset; its least-squares value over every pair of fixes since the start
-(heading_from_velocity_changes) and its 1-sigma hand over once that is below align_max_heading_std. align_in_motion
+(heading_from_vector_pairs) and its 1-sigma hand over once that is below align_max_heading_std. align_in_motion
 auto takes the course once the velocity changes confirm it and theirs where they refute it (it waits for them: a car
 joining at a steady speed aligns later than by its course).
+A vehicle with a body-velocity sensor (a DVL: an AUV crabs in the current, its course is not its heading) aligns by
+that velocity (align_in_motion: dvl): the DVL's velocity at the IMU, v_b, rotated by the engine's attitude of unknown
+yaw and carried to the fix's time with the IMU's velocity change since, is the GNSS velocity rotated by the yaw
+offset; the same least squares over every (DVL, fix) pair (heading_from_vector_pairs). Where no DVL velocity came in
+the last DVL_RECENT_S (no bottom lock at the surface, no DVL) it falls back to the course.
 Rest, for levelling and gyrocompassing, is a GNSS speed that reads rest and a body that did not turn since the last
 fix (turned): a vehicle tilts as it starts to move while its speed still reads rest.
 """
@@ -166,13 +171,25 @@ def turned(seg, noise: ImuNoise) -> bool:
 
 
 AUTO_CONFIRM_STD = math.radians(30.0)  # align_in_motion auto: the velocity changes' 1-sigma that can confirm a course
-ACCEL_MIN_PAIRS = 10  # pairs of fixes before the acceleration method trusts its own residuals for its 1-sigma
+ACCEL_MIN_PAIRS = 10  # pairs before the acceleration and dvl methods trust their own residuals for their 1-sigma
+DVL_RECENT_S = 3.0  # align_in_motion dvl: a DVL velocity at most this old [s] pairs with a fix (none: the course)
 
 
-def heading_from_velocity_changes(sums) -> tuple[float, float]:
-    """(psi, 1-sigma) [rad]: the yaw rotation that best takes the IMU's horizontal velocity changes a (integrated in
-    a frame of unknown yaw) onto the GNSS's b over the same intervals, from sums = (sum w a.b, sum w a x b,
-    sum w |a|^2, sum w |b|^2, n pairs) with weights w the inverse variance of b - R a per axis. The 2-D orthogonal
+def add_vector_pair(sums: list, a, b, var: float) -> None:
+    """Add one pair of horizontal vectors (a in the engine's frame of unknown yaw, b the GNSS's) [m/s, N, E], the
+    variance var [(m/s)^2] of b - R a per axis, to the sums of heading_from_vector_pairs."""
+    sums[0] += (a[0] * b[0] + a[1] * b[1]) / var
+    sums[1] += (a[0] * b[1] - a[1] * b[0]) / var
+    sums[2] += (a[0] ** 2 + a[1] ** 2) / var
+    sums[3] += (b[0] ** 2 + b[1] ** 2) / var
+    sums[4] += 1.0
+
+
+def heading_from_vector_pairs(sums) -> tuple[float, float]:
+    """(psi, 1-sigma) [rad]: the yaw rotation that best takes horizontal vectors a of the IMU (integrated in a frame of
+    unknown yaw: velocity changes between fixes, or a DVL's velocity) onto the GNSS's b (the same quantity at the
+    fixes), from sums = (sum w a.b, sum w a x b, sum w |a|^2, sum w |b|^2, n pairs) (add_vector_pair) with weights w
+    the inverse variance of b - R a per axis. The 2-D orthogonal
     Procrustes (Wahba) solution psi = atan2(sum w a x b, sum w a.b); its 1-sigma the inverse square root of the
     Fisher information sum w |a|^2 times the a-posteriori variance factor s0^2 = RSS / (2 n - 1) of the weighted
     residuals (RSS = sum w |b|^2 + sum w |a|^2 - 2 sqrt(dot^2 + cross^2)): the weights' variances come from the
@@ -229,11 +246,16 @@ class Alignment:
         self.rest_prev = False  # the last fix was at rest
         self.prev_track: tuple | None = None
         self.speed_max = 0.0  # fastest horizontal GNSS speed [m/s] seen while coarse
-        self.start_heading_std = math.nan  # the heading 1-sigma [rad] a coarse alignment handed to the filter
+        self.start_heading = math.nan  # the heading [rad] a coarse alignment handed to the filter, and its 1-sigma
+        self.start_heading_std = math.nan  # [rad]
         # (a diagnostic of this process's run: not in get_state, a resumed engine reports nan)
         self.dv_p = [0.0, 0.0]  # the IMU's horizontal velocity change since the last fix [m/s, N, E of the yaw-0 frame]
         self.accel_prev: tuple | None = None  # (v_N, v_E, 1-sigma) [m/s] of the last fix with a velocity
         self.accel_sums = [0.0, 0.0, 0.0, 0.0, 0.0]  # weighted a.b, a x b, |a|^2, |b|^2 and the count of pairs
+        self.dv_total = [0.0, 0.0]  # the IMU's horizontal velocity change since the start [m/s, N, E, yaw-0 frame]
+        self.dvl_last: tuple | None = None  # (t_ns, v_N, v_E, variance, dv_total N, E) of a DVL velocity not yet paired
+        self.dvl_seen_ns: int | None = None  # data time of the last DVL velocity while coarse [ns]
+        self.dvl_sums = [0.0, 0.0, 0.0, 0.0, 0.0]  # as accel_sums, of the (DVL, fix) pairs
         self.gyrocompass_refusal = gyrocompass_refusal(config.imu_noise, float(initial.llh[0]),
                                                        config.align_gyrocompass_s, config.align_max_heading_std)
         self.times: dict[str, int] = {}
@@ -403,6 +425,18 @@ class Alignment:
         seg[6] += dt
         self.dv_p[0] += dv_n
         self.dv_p[1] += dv_e
+        self.dv_total[0] += dv_n
+        self.dv_total[1] += dv_e
+
+    def on_body_velocity(self, nav, t_ns: int, v_b, var: float) -> None:
+        """Coarse, align_in_motion dvl: a DVL's velocity of the IMU v_b [m/s, body] at t_ns (the engine's time) with
+        variance var [(m/s)^2] per horizontal axis, kept in the engine's yaw-0 frame for the next fix (_dvl_pair)."""
+        if not self.coarse or self.config.align_in_motion != "dvl":
+            return
+        v_e = nav.state.C_nb @ np.asarray(v_b, dtype=float)
+        var_e = var + (self._tilt() * float(v_e[2])) ** 2  # a tilt error turns the vertical velocity horizontal
+        self.dvl_last = (int(t_ns), float(v_e[0]), float(v_e[1]), var_e, *self.dv_total)
+        self.dvl_seen_ns = int(t_ns)
 
     def on_attitude(self, nav, t_ns: int, roll: float, pitch: float, std: float, max_age_s: float) -> bool:
         """Roll and pitch [rad] with 1-sigma std [rad] from an attitude source at t_ns: taken only while coarse,
@@ -449,6 +483,7 @@ class Alignment:
         v, std_v = self._fix_velocity(fix, std_pos, self.prev_track)
         if v is not None:
             self.speed_max = max(self.speed_max, math.hypot(v[0], v[1]))
+        self._dvl_pair(nav, fix, omega_ib_b, v, std_v)
         self._velocity_change(v, std_v, self.seg[6])
         seg, rest = self.seg, self.rest
         self.tilt_std += cfg.imu_noise.gyro_bias_std * seg[6]  # roll/pitch drift on the gyro since the last fix
@@ -474,28 +509,43 @@ class Alignment:
         return self._in_motion(nav, fix, omega_ib_b, v, std_pos, std_v)
 
     def _in_motion(self, nav, fix: GnssFix, omega_ib_b, v, std_pos, std_v) -> str:
-        """In-motion hand-over by align_in_motion: "course", "acceleration", or "auto": the course once the velocity
+        """In-motion hand-over by align_in_motion: "course", "acceleration", "auto": the course once the velocity
         changes confirm it (their heading known within AUTO_CONFIRM_STD and the course within 3 sigma of both from
         it; refuted: a vehicle reversing or not moving along its x axis, counted align_course_refuted), else the
-        velocity changes' heading once within align_max_heading_std."""
+        velocity changes' heading once within align_max_heading_std; or "dvl": the DVL pairs' heading once within
+        it, the course where no DVL velocity is recent."""
         how = self.config.align_in_motion
-        course = self._course_candidate(nav, v, std_v) if how != "acceleration" else None
-        accel = self._acceleration_candidate(nav) if how != "course" and v is not None else None
-        if how == "auto" and course is not None:
-            psi, std = heading_from_velocity_changes(self.accel_sums)
-            yaw = quat_to_euler(nav.state.q_nb)[2] + psi
-            if not std <= AUTO_CONFIRM_STD:
-                course = None
-            elif abs(math.remainder(course[0][2] - yaw, 2.0 * math.pi)) > 3.0 * math.hypot(course[1][2], std):
-                nav.counters["align_course_refuted"] += 1
-                course = None
-        chosen = course or accel
+        if how == "dvl" and self._dvl_recent(fix.t_ns):
+            chosen = self._rotation_candidate(nav, self.dvl_sums, "dvl") if v is not None else None
+        else:
+            chosen = self._course_or_acceleration(nav, "course" if how == "dvl" else how, v, std_v)
         if chosen is None:
             return "align_coarse"
         euler, std_euler, method, tilt_source = chosen
         if tilt_source:
             self.tilt_source = tilt_source
         return self._start_fine(nav, euler, std_euler, method, fix, omega_ib_b, v, std_pos, std_v)
+
+    def _course_or_acceleration(self, nav, how: str, v, std_v):
+        """The candidate of align_in_motion course, acceleration or auto (_in_motion) at a fix; None: none yet."""
+        course = self._course_candidate(nav, v, std_v) if how != "acceleration" else None
+        accel = (self._rotation_candidate(nav, self.accel_sums, "acceleration")
+                 if how != "course" and v is not None else None)
+        if how == "auto" and course is not None:
+            psi, std = heading_from_vector_pairs(self.accel_sums)
+            yaw = quat_to_euler(nav.state.q_nb)[2] + psi
+            if not std <= AUTO_CONFIRM_STD:
+                course = None
+            elif abs(math.remainder(course[0][2] - yaw, 2.0 * math.pi)) > 3.0 * math.hypot(course[1][2], std):
+                nav.counters["align_course_refuted"] += 1
+                course = None
+        return course or accel
+
+    def _dvl_recent(self, t_ns: int) -> bool:
+        """Whether a DVL velocity came in the last DVL_RECENT_S before t_ns, or the engine started less than that
+        before it (the first DVL sample may come after the first fix) (align_in_motion dvl)."""
+        last = self.dvl_seen_ns if self.dvl_seen_ns is not None else self.times[str(AlignState.COARSE)]
+        return t_ns - last <= DVL_RECENT_S * NS
 
     def _course_candidate(self, nav, v, std_v):
         """(euler, std_euler, "in_motion", tilt source or "") of yaw = course once fast enough and within
@@ -512,17 +562,17 @@ class Alignment:
             return euler, std_euler, "in_motion", ""
         return euler, std_euler, "in_motion", "climb_angle"
 
-    def _acceleration_candidate(self, nav):
-        """(euler, std_euler, "acceleration", tilt source or "") once the rotation between the IMU's and the GNSS's
-        horizontal velocity changes is known within align_max_heading_std: the yaw the engine's plus it, roll and
-        pitch the engine's (levelled, given or assumed level) with their 1-sigma; None before."""
-        psi, std = heading_from_velocity_changes(self.accel_sums)
+    def _rotation_candidate(self, nav, sums, method: str):
+        """(euler, std_euler, method, tilt source or "") once the yaw offset of the pairs in sums (the velocity
+        changes' or the DVL's, heading_from_vector_pairs) is known within align_max_heading_std: the yaw the engine's
+        plus it, roll and pitch the engine's (levelled, given or assumed level) with their 1-sigma; None before."""
+        psi, std = heading_from_vector_pairs(sums)
         if not std <= self.config.align_max_heading_std:
             return None
         roll, pitch, yaw = quat_to_euler(nav.state.q_nb)
         tilt = self._tilt()
         return (np.array([roll, pitch, math.remainder(yaw + psi, 2.0 * math.pi)]), np.array([tilt, tilt, std]),
-                "acceleration", "assumed_level" if self.tilt_std > self.config.align_tilt_std else "")
+                method, "assumed_level" if self.tilt_std > self.config.align_tilt_std else "")
 
     def _tilt(self) -> float:
         """Roll/pitch 1-sigma [rad] the acceleration method works with: the known one, at most align_tilt_std (an
@@ -532,7 +582,7 @@ class Alignment:
     def _velocity_change(self, v, std_v, dt: float) -> None:
         """One pair of fixes for the acceleration method: the GNSS horizontal velocity change b since the last fix
         with a velocity against the IMU's a over the same time dt [s] (self.dv_p, in the engine's yaw-0 frame), summed
-        for the least-squares rotation b = R(psi) a (see heading_from_velocity_changes); each pair weighted by the
+        for the least-squares rotation b = R(psi) a (see heading_from_vector_pairs); each pair weighted by the
         inverse variance of b - R a per axis: the two fixes' velocity variances, the tilt error times g over dt, the
         accelerometer noise and bias over dt."""
         a, self.dv_p = self.dv_p, [0.0, 0.0]
@@ -543,13 +593,26 @@ class Alignment:
         noise = self.config.imu_noise
         var = (prev[2] ** 2 + cur[2] ** 2 + (earth.G0 * self._tilt() * dt) ** 2 + noise.vrw**2 * dt
                + (noise.accel_bias_std * dt) ** 2)
-        b = (cur[0] - prev[0], cur[1] - prev[1])
-        sums = self.accel_sums
-        sums[0] += (a[0] * b[0] + a[1] * b[1]) / var
-        sums[1] += (a[0] * b[1] - a[1] * b[0]) / var
-        sums[2] += (a[0] ** 2 + a[1] ** 2) / var
-        sums[3] += (b[0] ** 2 + b[1] ** 2) / var
-        sums[4] += 1.0
+        add_vector_pair(self.accel_sums, a, (cur[0] - prev[0], cur[1] - prev[1]), var)
+
+    def _dvl_pair(self, nav, fix: GnssFix, omega_ib_b, v, std_v) -> None:
+        """One (DVL, fix) pair for align_in_motion dvl: the last DVL velocity not yet paired (on_body_velocity), at
+        most DVL_RECENT_S old, carried to the fix with the IMU's velocity change since (the engine's yaw-0 frame) and
+        to the antenna with the lever arm, against the fix's horizontal velocity v [m/s] (1-sigma std_v), summed for
+        b = R(psi) a; weighted by the inverse variance of b - R a per axis: the fix's and the DVL's, the tilt error
+        times g and the accelerometer noise and bias over the time between them."""
+        last, self.dvl_last = self.dvl_last, None
+        if last is None or v is None or not math.hypot(v[0], v[1]) >= self.config.align_min_speed_mps:
+            return
+        gap = (fix.t_ns - last[0]) / NS
+        if not 0.0 <= gap <= DVL_RECENT_S:
+            return
+        lever_n = nav.state.C_nb @ np.cross(omega_ib_b, nav.lever_b)
+        a = (last[1] + self.dv_total[0] - last[4] + lever_n[0], last[2] + self.dv_total[1] - last[5] + lever_n[1])
+        noise = self.config.imu_noise
+        var = (float(max(std_v[0], std_v[1])) ** 2 + last[3] + (earth.G0 * self._tilt() * gap) ** 2
+               + noise.vrw**2 * gap + (noise.accel_bias_std * gap) ** 2)
+        add_vector_pair(self.dvl_sums, a, (float(v[0]), float(v[1])), var)
 
     def _track(self, nav, fix: GnssFix, omega_ib_b: np.ndarray, v_ant_n, std_pos: np.ndarray, std_v) -> None:
         """Put the antenna at the fix and, when given, its velocity at v_ant_n [m/s]; their variances become those
@@ -580,7 +643,7 @@ class Alignment:
                         std_euler=np.asarray(std_euler, dtype=float), heading_known=True)
         nav.start_filter(initial_covariance(start, self.config), fix.t_ns)
         self.coarse = False
-        self.start_heading_std = float(std_euler[2])
+        self.start_heading, self.start_heading_std = float(euler[2]), float(std_euler[2])
         self.method = method
         nav.counters[f"align_{method}"] += 1
         self._set_state(nav, AlignState.FINE, fix.t_ns,
@@ -591,7 +654,7 @@ class Alignment:
         return {"state": self.state, "method": self.method, "heading_std_rad": float(nav.std_att[2]),
                 "times_ns": dict(self.times), "tilt_source": self.tilt_source, "gyrocompass": self.gyrocompass_refusal,
                 "initial_state": self.initial_check, "waiting": self.waiting(),
-                "start_heading_std_rad": self.start_heading_std}
+                "start_heading_rad": self.start_heading, "start_heading_std_rad": self.start_heading_std}
 
     def waiting(self) -> str:
         """While coarse: what in-motion alignment waits for ("" otherwise): the speed reached against
@@ -599,8 +662,14 @@ class Alignment:
         if not self.coarse:
             return ""
         cfg = self.config
-        if cfg.align_in_motion != "course":
-            std = heading_from_velocity_changes(self.accel_sums)[1]
+        if cfg.align_in_motion == "dvl" and self.dvl_seen_ns is not None:
+            std = heading_from_vector_pairs(self.dvl_sums)[1]
+            return (f"in motion (dvl): heading 1-sigma {math.degrees(std):.1f} deg from {self.dvl_sums[4]:.0f} "
+                    f"DVL/GNSS velocity pairs so far, above align_max_heading_std "
+                    f"{math.degrees(cfg.align_max_heading_std):.1f} deg (the yaw = course where no DVL velocity "
+                    f"came in the last {DVL_RECENT_S:g} s)")
+        if cfg.align_in_motion in ("acceleration", "auto"):
+            std = heading_from_vector_pairs(self.accel_sums)[1]
             return (f"in motion ({cfg.align_in_motion}): heading 1-sigma {math.degrees(std):.1f} deg from "
                     f"{self.accel_sums[4]:.0f} velocity changes so far, above align_max_heading_std "
                     f"{math.degrees(cfg.align_max_heading_std):.1f} deg (it needs horizontal manoeuvres"
@@ -622,6 +691,10 @@ class Alignment:
                 "speed_max": float(self.speed_max), "dv_p": [float(x) for x in self.dv_p],
                 "accel_prev": None if self.accel_prev is None else list(self.accel_prev),
                 "accel_sums": [float(x) for x in self.accel_sums],
+                "dv_total": [float(x) for x in self.dv_total],
+                "dvl_last": None if self.dvl_last is None else [int(self.dvl_last[0])] + [
+                    float(x) for x in self.dvl_last[1:]],
+                "dvl_seen_ns": self.dvl_seen_ns, "dvl_sums": [float(x) for x in self.dvl_sums],
                 "checking": bool(self.checking), "initial_check": self.initial_check, "check_strike": self.check_strike,
                 "check_v_ref": None if self.check_v_ref is None else list(self.check_v_ref),
                 "check_prev": None if self.check_prev is None else [int(self.check_prev[0])] + [
@@ -640,6 +713,12 @@ class Alignment:
         prev = st.get("accel_prev")
         self.accel_prev = None if prev is None else tuple(float(x) for x in prev)
         self.accel_sums = [float(x) for x in st.get("accel_sums", (0.0,) * 5)]
+        self.dv_total = [float(x) for x in st.get("dv_total", (0.0, 0.0))]
+        last = st.get("dvl_last")
+        self.dvl_last = None if last is None else (int(last[0]), *(float(x) for x in last[1:]))
+        seen = st.get("dvl_seen_ns")
+        self.dvl_seen_ns = None if seen is None else int(seen)
+        self.dvl_sums = [float(x) for x in st.get("dvl_sums", (0.0,) * 5)]
         self.prev_track = None if track is None else (int(track[0]), np.array(track[1], dtype=float),
                                                       np.array(track[2], dtype=float))
         self.checking, self.initial_check, self.check_strike = bool(st["checking"]), st["initial_check"], \

@@ -246,9 +246,10 @@ class NavConfig:
     Alignment (zennav.nav.alignment; used when the initial heading is unknown, InitialState.heading_is_known):
     align_in_motion: how the heading is found in motion: "course" (yaw = course, pitch = climb angle: a vehicle
         moving along its body x axis), "acceleration" (the GNSS velocity changes against the IMU's in the
-        levelled frame: any direction of motion, e.g. a multirotor; it needs horizontal accelerations) or "auto"
+        levelled frame: any direction of motion, e.g. a multirotor; it needs horizontal accelerations), "auto"
         (the course where the velocity changes confirm it, theirs where they refute it: a vehicle reversing, or one
-        that does not move along x; nothing before they are known).
+        that does not move along x; nothing before they are known) or "dvl" (a DVL's body velocity against the GNSS
+        velocity: an AUV that crabs in a current; the course where no DVL velocity is recent).
     align_min_speed_mps: GNSS horizontal speed [m/s] above which yaw = course and pitch = climb angle (in motion).
     align_course_std / align_tilt_std: 1-sigma [rad] of heading minus course (sideslip, yaw mounting) and of
         roll 0 / pitch = climb angle for a ground vehicle when no better tilt is known.

@@ -141,6 +141,32 @@ class _DvlSource(AidSource):
         self.last_t_ns = t_ns
         return True
 
+    def measured_velocity(self, sample: DvlSample) -> tuple[str, np.ndarray | None, np.ndarray]:
+        """(beam case, v_d [m/s] or None, its covariance R [(m/s)^2]): the DVL-frame velocity as the DVL reports it
+        or by least squares from the beams (None: 2 opposite, 1 or 0 valid beams; module docstring, Loose)."""
+        cfg = self.config
+        if sample.velocity_d is not None and sample.beams is None:
+            case = "4" if sample.velocity_valid is None or sample.velocity_valid else "0"
+            v_meas = np.asarray(sample.velocity_d, dtype=float) if case == "4" else None
+            return case, v_meas, np.eye(3) * cfg.dvl_velocity_std_mps**2
+        beams, valid = self.beams_of(sample)
+        used = valid if valid.sum() >= 3 else np.ones(4, dtype=bool)
+        R = cfg.dvl_beam_std_mps**2 * np.linalg.inv(self.B[used].T @ self.B[used])
+        return beam_case(valid), velocity_from_beams(beams, valid, self.B), 0.5 * (R + R.T)
+
+    def coarse(self, nav, sample: DvlSample) -> bool:
+        """Coarse alignment: nothing fused (counted dvl_coarse); the sample's velocity of the IMU in the body frame,
+        v_b = C_bd v_d - omega_ib_b x l_b, goes to the alignment (align_in_motion dvl; the earth and transport rates
+        in omega_nb_b are left out: under 1e-4 rad/s). Returns False."""
+        nav.counters["dvl_coarse"] += 1
+        _, v_d, R = self.measured_velocity(sample)
+        if v_d is not None:
+            C_bd = self.frame.C_vb.T
+            v_b = C_bd @ v_d - np.cross(nav.imu_rates()[0], self.frame.lever_b)
+            R_b = C_bd @ R @ C_bd.T
+            nav.alignment.on_body_velocity(nav, int(sample.t_ns), v_b, float(max(R_b[0, 0], R_b[1, 1])))
+        return False
+
     def velocity(self, nav) -> tuple[np.ndarray, np.ndarray]:
         """v_d_hat [m/s] of the DVL point and its Jacobian H_v (3 x n_states), at the engine's state (covariance
         propagated to now)."""
@@ -237,8 +263,7 @@ class DvlTight(_DvlSource):
         added to their noise variance (the learned correction is not exact: its size bounds its error); returns
         whether it was fused."""
         if nav.align_state == AlignState.COARSE:
-            nav.counters["dvl_coarse"] += 1
-            return False
+            return self.coarse(nav, sample)
         beams, valid = self.beams_of(sample)
         R_diag = np.full(4, self.R_beam)
         if correction is not None:
@@ -314,26 +339,13 @@ class DvlLoose(_DvlSource):
 
     def on_input(self, nav, sample: DvlSample) -> bool:
         if nav.align_state == AlignState.COARSE:
-            nav.counters["dvl_coarse"] += 1
-            return False
-        cfg = self.config
-        v_meas: np.ndarray | None
-        if sample.velocity_d is not None and sample.beams is None:
-            case = "4" if sample.velocity_valid is None or sample.velocity_valid else "0"
-            v_meas = np.asarray(sample.velocity_d, dtype=float) if case == "4" else None
-            R = np.eye(3) * cfg.dvl_velocity_std_mps**2
-        else:
-            beams, valid = self.beams_of(sample)
-            case = beam_case(valid)
-            v_meas = velocity_from_beams(beams, valid, self.B)  # None: 2 parallel, 1 or 0 beams
-            used = valid if valid.sum() >= 3 else np.ones(4, dtype=bool)
-            R = cfg.dvl_beam_std_mps**2 * np.linalg.inv(self.B[used].T @ self.B[used])
+            return self.coarse(nav, sample)
+        case, v_meas, R = self.measured_velocity(sample)
         self.count_case(nav, case)
         if v_meas is None:
             return self.no_update(nav, int(sample.t_ns), case, [])
         v_d, H_v = self.velocity(nav)
-        return nav.update(self, Measurement(int(sample.t_ns), v_meas, v_d - v_meas, H_v, 0.5 * (R + R.T),
-                                            faults=(f"beams_{case}",)))
+        return nav.update(self, Measurement(int(sample.t_ns), v_meas, v_d - v_meas, H_v, R, faults=(f"beams_{case}",)))
 
 
 def dvl_source(config: NavConfig) -> AidSource | None:
