@@ -186,8 +186,9 @@ UNDERWATER_DEPTH_M = 0.5  # [m] the truth deeper than this below the water surfa
 def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_M) -> list[dict]:
     """Each stretch of the truth under water (depth = config.depth_surface_h_m - truth height > min_depth_m [m])
     inside the solution's span, from the dataset's last GNSS fix in it where it has one (A-KIT's derived fixes of
-    the first gnss_s seconds: the drift counts from the last fix, as benchmarks/akit_dvl.py): its start and end
-    [s from the initial time], the horizontal distance travelled [m] (the truth's path), the horizontal error at
+    the first gnss_s seconds: the drift counts from the last fix, as benchmarks/akit_dvl.py); stretches with no
+    GNSS fix between them are one (a vehicle bobbing at the threshold without a fix still dead-reckons): its start
+    and end [s from the initial time], the horizontal distance travelled [m] (the truth's path), the horizontal error at
     its end and the largest within it [m], and the drift at its end as a percentage of that distance (the figure
     INS/DVL navigation is quoted in)."""
     truth = ds.truth
@@ -196,9 +197,16 @@ def dives(ds: Dataset, res: ReplayResult, min_depth_m: float = UNDERWATER_DEPTH_
     sel = np.flatnonzero((truth.t_ns >= res.t_ns[0]) & (truth.t_ns <= res.t_ns[-1]))
     deep = ds.config.depth_surface_h_m - truth.llh[sel, 2] > min_depth_m
     edges = np.flatnonzero(np.diff(np.concatenate([[0], deep.astype(np.int8), [0]])))
+    stretches: list[list[int]] = []
+    for a, b in zip(edges[0::2].tolist(), edges[1::2].tolist()):
+        if stretches and not np.any((ds.gnss.t_ns > truth.t_ns[sel[stretches[-1][1] - 1]])
+                                    & (ds.gnss.t_ns < truth.t_ns[sel[a]])):
+            stretches[-1][1] = b  # no fix at the surface in between: the same stretch
+        else:
+            stretches.append([a, b])
     t0 = int(ds.initial.t_ns)
     out = []
-    for a, b in zip(edges[0::2], edges[1::2]):
+    for a, b in stretches:
         idx = sel[a:b]
         fixes = ds.gnss.t_ns[(ds.gnss.t_ns >= truth.t_ns[idx[0]]) & (ds.gnss.t_ns <= truth.t_ns[idx[-1]])]
         if fixes.size:

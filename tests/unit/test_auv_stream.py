@@ -224,6 +224,30 @@ def test_dives_score_each_stretch_under_water():
         "end_horizontal_m"]
 
 
+def test_a_dive_bobbing_at_the_surface_without_a_fix_is_one_stretch():
+    """Under water 30-40 s and 42-50 s, near the surface between (above the 0.5 m threshold, as A-KIT T11's last two
+    minutes): without a GNSS fix there the vehicle dead-reckoned on, so one stretch 30..50 s scores it (not a drift of
+    hundreds of percent over a metre); a fix at the surface splits it in two."""
+    from zennav.metrics import dives
+    from zennav.replay import ReplayResult
+
+    ds = load_dataset("sim:car", duration_s=60.0)
+    tr = ds.truth
+    s = (tr.t_ns - ds.initial.t_ns) / 1e9
+    t_fix = (ds.gnss.t_ns - ds.initial.t_ns) / 1e9
+    all_fixes = ds.gnss
+    ds.gnss = all_fixes.slice((t_fix < 30.0) | (t_fix > 50.0))
+    ds.config = ds.config.with_(depth_surface_h_m=0.0)
+    tr.llh[:, 2] = np.where(((s >= 30.0) & (s < 40.0)) | ((s >= 42.0) & (s < 50.0)), -5.0, -0.2)
+    res = ReplayResult("x", tr.t_ns, tr.llh.copy(), np.zeros_like(tr.llh), np.tile([1.0, 0, 0, 0], (len(s), 1)),
+                       np.zeros_like(tr.llh), np.zeros(len(s), bool), [])
+    (d,) = dives(ds, res)
+    assert d["start_s"] == pytest.approx(30.0, abs=0.02) and d["end_s"] == pytest.approx(50.0, abs=0.02)
+    ds.gnss = all_fixes.slice((t_fix < 30.0) | (t_fix > 50.0) | ((t_fix > 40.5) & (t_fix < 41.5)))
+    first, second = dives(ds, res)
+    assert first["end_s"] == pytest.approx(40.0, abs=0.02) and second["start_s"] == pytest.approx(42.0, abs=0.02)
+
+
 def test_replay_metrics_of_an_auv_score_its_dives():
     """`zennav replay sim:auv` (evaluate, format_table): metrics.json carries each dive's drift, the table a row per
     dive, as the page of `zennav report`; a car (no DVL, no depth sensor) gets no dive entry, whatever its heights."""
