@@ -38,6 +38,7 @@ from .aid import MAX_FIX_AGE_S, AidReport, AidSource, FixContext, GnssPosition, 
 from .alignment import Alignment, coarse_initial
 from .eskf import (
     ATT,
+    BG,
     N_STATES,
     POS,
     VEL,
@@ -124,6 +125,7 @@ class Navigator:
         self.gyro_bias = [float(x) for x in initial.gyro_bias]
         self.accel_bias = [float(x) for x in initial.accel_bias]
         self.kf = ErrorStateKF(initial_covariance(initial, config))
+        self._prior_var = np.diag(self.kf.P).copy()  # the 1-sigma^2 each state starts from (_fade's cap)
         # the per-sample arithmetic: zennav.nav.kernels, or its compiled() namespace once run_imu ran compiled (the
         # same floats; the step-wise samples of a compiled replay, its GNSS epochs, then call the compiled kernels)
         self.kernels: types.ModuleType | types.SimpleNamespace = kernels
@@ -326,6 +328,7 @@ class Navigator:
         P[:n, :n] = self.kf.P
         P[sl, sl] = np.diag(np.square(std0))
         self.kf.P = P
+        self._prior_var = np.concatenate([self._prior_var, np.square(std0)])
         self._q_psd = np.concatenate([self._q_psd, q])
         self._aug_decay = np.concatenate([self._aug_decay, np.full(k, 0.0 if math.isinf(tau_s) else -1.0 / tau_s)])
         self._aug_x = np.concatenate([self._aug_x, np.zeros(k) if x0 is None else np.asarray(x0, dtype=float)])
@@ -342,6 +345,7 @@ class Navigator:
         P[:, sl] = 0.0
         P[sl, sl] = np.diag(np.square(np.asarray(std, dtype=float)))
         self.kf.P = P
+        self._prior_var[sl] = np.diag(P)[sl]
         self._aug_x[sl.start - N_STATES:sl.stop - N_STATES] = 0.0
         if self.recorder is not None:
             self.recorder.on_inflate(self.t_ns, self.kf.P)
@@ -459,7 +463,7 @@ class Navigator:
         # consistency monitoring once aligned or started by a coarse alignment (Alignment.monitored)
         monitor = source.consistency if m.gated and self.alignment.monitored() else None
         if monitor is not None and (factor := monitor.factor(z, HPHt, R)) > 1.0:
-            self.kf.P *= factor  # overconfident on small, steady innovations: fading memory (nav.consistency)
+            self._fade(factor)  # overconfident on small, steady innovations: fading memory (nav.consistency)
             PHt = self.kf.P @ H.T
             self.counters[f"{name}_inflated"] += 1
             faults.append("inflated")
@@ -535,6 +539,18 @@ class Navigator:
         self._cov_dt, self._cov_dvel, self._cov_dtheta = 0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
         self.hold_learning(t_ns)
         self._update_stds()
+
+    def _fade(self, factor: float) -> None:
+        """Fading memory (zennav.nav.consistency): P <- D P D, D = diag(d), d = sqrt(factor) on the navigation states
+        (position, velocity, attitude) and, on the IMU biases and the augmented states, only as far as their 1-sigma
+        stays within the one they started from (_prior_var); a congruence, so P stays positive semi-definite. Those
+        are constants or slow Gauss-Markov processes with priors of their own (a gyro bias, a DVL's mounting): the
+        INS's missing process noise is no reason to be less sure of them than before any measurement (scaled with
+        the rest, a DVL's yaw mounting went from 0.5 to 8 deg after a coarse alignment, and the heading with it)."""
+        var, prior = np.diag(self.kf.P)[BG.start:], self._prior_var[BG.start:]
+        d = np.full(self.n_states, math.sqrt(factor))
+        d[BG.start:] = np.sqrt(np.clip(np.divide(prior, var, out=np.ones_like(var), where=var > 0.0), 1.0, factor))
+        self.kf.P *= np.outer(d, d)
 
     def hold_learning(self, t_ns: int) -> None:
         """No training samples until LEARN_SETTLE_S after t_ns (an outage, a covariance reset, a filter start)."""
@@ -660,6 +676,7 @@ class Navigator:
             "cov_dvel": list(self._cov_dvel),
             "cov_dtheta": list(self._cov_dtheta),
             "aug": {"blocks": {k: [v.start, v.stop] for k, v in self.aug_blocks.items()}, "x": self._aug_x.tolist()},
+            "prior_var": self._prior_var.tolist(),
             "pending": [_fix_to_map(f) for f in self._pending],
             "reports": [vars(r).copy() for r in self._reports],
             "dx_since_fix": self._dx_since_fix.tolist(),
@@ -694,6 +711,8 @@ class Navigator:
         self._cov_dvel = [float(x) for x in state["cov_dvel"]]
         self._cov_dtheta = [float(x) for x in state["cov_dtheta"]]
         self._aug_x = np.array(state["aug"]["x"], dtype=float)
+        if "prior_var" in state:  # a checkpoint from before it: the configuration's
+            self._prior_var = np.array(state["prior_var"], dtype=float)
         self._pending = [_fix_from_map(f) for f in state["pending"]]
         self._reports = [AidReport(**r) for r in state["reports"]]
         self._dx_since_fix = np.array(state["dx_since_fix"], dtype=float)
