@@ -1,14 +1,15 @@
 """In-motion alignment from an unknown heading: yaw = course, the acceleration method (GNSS velocity changes against
-the IMU's, zennav.nav.alignment.heading_from_vector_pairs) and auto (the course once the changes confirm it),
-beside the heading given.
+the IMU's, zennav.nav.alignment.heading_from_vector_pairs), auto (the course once the changes confirm it) and dvl (a
+DVL's body velocity against the GNSS velocity; the course without a DVL), beside the heading given.
 
 For each dataset the run starts with its initial yaw declared unknown (``zennav replay --heading-unknown``) and the
-parameter file's filter with the dataset's vehicle profile, the in-motion method forced to each of the two. Printed
+parameter file's filter with the dataset's vehicle profile, the in-motion method forced to each of --methods. Printed
 per group of datasets (medians over its runs): the share that left coarse alignment, the time to do so [s], the
-heading error at the hand-over [deg] against the filter's 1-sigma then (as a ratio: above 3 is overconfident), the
+heading error at the hand-over [deg] (the heading handed over, start_heading_rad, against the reference at that time:
+before any update of the same epoch) against the filter's 1-sigma then (as a ratio: above 3 is overconfident), the
 median heading error after it [deg] and the horizontal RMS [m] of the whole run.
 
-    .venv/bin/python benchmarks/alignment_in_motion.py     # ANSFL (61 flights), sim multirotor and car, A-KIT
+    .venv/bin/python benchmarks/alignment_in_motion.py --methods course,acceleration,auto,dvl  # ANSFL, sim, A-KIT
     .venv/bin/python benchmarks/alignment_in_motion.py --groups ansfl --methods acceleration
 """
 from __future__ import annotations
