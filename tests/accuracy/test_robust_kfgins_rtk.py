@@ -1,7 +1,7 @@
 """Issue 18, item 5 on real data: the rtklibexplorer car drive converted to KF-GINS files by the product's writer
 with the receiver's own RTK 1-sigma (about 1 cm) and the IMU's datasheet noise (ICM-45686; the car's vibration makes
 the real noise about 10x larger), position fixes only, as a KF-GINS user writes them. KF-GINS (no gate) fits the
-fixes to 0.116 m horizontal RMS (benchmarks/kfgins_compare.py rtk). Measured with zennav's defaults: 0.066 m, every
+fixes to 0.116 m horizontal RMS (benchmarks/kfgins_compare.py rtk). Measured with zennav's defaults: 0.064 m, every
 fix but one fused, no outage after the start, no reset; without the consistency monitor: 36 m, 38 covariance
 resets. A 1 km jump and a 10 m/s drag of the fixes are still rejected. The same files started 20 s later with the
 initial state of the original start (a user who cut the file's start): the first fixes reset its position and
