@@ -270,6 +270,9 @@ def test_a_crabbing_auv_aligns_by_its_dvl_where_its_course_misleads():
             assert yaw_errors_deg(ds, given)[-1000:].max() < 1.0  # the rotated dataset is consistent
             no_lock = replace(ds.dvl, beam_valid=np.zeros_like(ds.dvl.beam_valid))
             assert run_replay(replace(ds, dvl=no_lock)).status["alignment"]["method"] == "in_motion"
+            slow = run_replay(replace(ds, config=ds.config.with_(align_min_speed_mps=2.5))).status["alignment"]
+            assert slow["state"] == "coarse" and "below align_min_speed_mps 2.50 m/s, from which DVL" in \
+                slow["waiting"], slow
         for method in ("course", "dvl"):
             al = run_replay(replace(ds, config=ds.config.with_(align_in_motion=method))).status["alignment"]
             yaw = np.interp(al["times_ns"]["fine"], ds.truth.t_ns, np.unwrap(ds.truth.euler[:, 2]))

@@ -429,8 +429,9 @@ class Alignment:
         self.dv_total[1] += dv_e
 
     def on_body_velocity(self, nav, t_ns: int, v_b, var: float) -> None:
-        """Coarse, align_in_motion dvl: a DVL's velocity of the IMU v_b [m/s, body] at t_ns (the engine's time) with
-        variance var [(m/s)^2] per horizontal axis, kept in the engine's yaw-0 frame for the next fix (_dvl_pair)."""
+        """Coarse, align_in_motion dvl: a DVL's velocity of the IMU v_b [m/s, body] of the sample at t_ns (the engine
+        at most dvl_max_age_s later) with variance var [(m/s)^2] per horizontal axis, kept in the engine's yaw-0 frame
+        for the next fix (_dvl_pair)."""
         if not self.coarse or self.config.align_in_motion != "dvl":
             return
         v_e = nav.state.C_nb @ np.asarray(v_b, dtype=float)
@@ -544,7 +545,7 @@ class Alignment:
     def _dvl_recent(self, t_ns: int) -> bool:
         """Whether a DVL velocity came in the last DVL_RECENT_S before t_ns, or the engine started less than that
         before it (the first DVL sample may come after the first fix) (align_in_motion dvl)."""
-        last = self.dvl_seen_ns if self.dvl_seen_ns is not None else self.times[str(AlignState.COARSE)]
+        last = self.dvl_seen_ns if self.dvl_seen_ns is not None else self.times.get(str(AlignState.COARSE), t_ns)
         return t_ns - last <= DVL_RECENT_S * NS
 
     def _course_candidate(self, nav, v, std_v):
@@ -664,6 +665,10 @@ class Alignment:
         cfg = self.config
         if cfg.align_in_motion == "dvl" and self.dvl_seen_ns is not None:
             std = heading_from_vector_pairs(self.dvl_sums)[1]
+            if self.speed_max < cfg.align_min_speed_mps:
+                return (f"in motion (dvl): GNSS speed at most {self.speed_max:.2f} m/s so far, below "
+                        f"align_min_speed_mps {cfg.align_min_speed_mps:.2f} m/s, from which DVL/GNSS velocity pairs "
+                        f"count (a vehicle profile or --params file sets it)")
             return (f"in motion (dvl): heading 1-sigma {math.degrees(std):.1f} deg from {self.dvl_sums[4]:.0f} "
                     f"DVL/GNSS velocity pairs so far, above align_max_heading_std "
                     f"{math.degrees(cfg.align_max_heading_std):.1f} deg (the yaw = course where no DVL velocity "
