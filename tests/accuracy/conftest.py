@@ -1,6 +1,10 @@
 """Shared fixtures of the accuracy tests: real recordings from the shared data folder."""
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
 import pytest
 
 from zennav.datasets import registry
@@ -17,3 +21,19 @@ def rtklib_dataset():
     if not folder.is_dir():
         pytest.skip(f"data folder {folder} is absent")
     return registry.load_dataset(str(folder))
+
+
+@pytest.fixture(scope="session")
+def load_benchmark():
+    """load(NAME): the benchmark script benchmarks/NAME.py as a module (the accuracy tests run the product through
+    the same functions the README's commands do)."""
+    return _load_benchmark
+
+
+def _load_benchmark(name: str) -> ModuleType:
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, script)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

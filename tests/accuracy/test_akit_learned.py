@@ -7,30 +7,21 @@ VBKF alone 0.59 m), no worse than the EKF on the clean DVL, which drifts under 0
 (0.146 / 0.063 %). Skipped without the data."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from zennav.datasets import registry
 from zennav.datasets.errors import DataError
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "akit_dvl.py"
-
 
 @pytest.fixture(scope="module")
-def akit_dvl():
+def akit_dvl(load_benchmark):
     try:
         if not (registry.data_root() / registry.AKIT_FOLDER / "Trajectory12").is_dir():
             pytest.skip("A-KIT data not in the shared data folder")
     except DataError as exc:
         pytest.skip(f"shared data folder not found ({exc})")
-    spec = importlib.util.spec_from_file_location("akit_dvl", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("akit_dvl")
 
 
 def test_learned_compensation_recovers_the_anomalies_cost_on_the_test_dives(akit_dvl, tmp_path):

@@ -5,25 +5,19 @@ KF-GINS's (measured on 600 s flights, seeds 0 and 1: -0.6 % to +0.2 %). Skipped 
 ($ZENNAV_KFGINS, else /tmp/kfgins/bin/KF-GINS)."""
 from __future__ import annotations
 
-import importlib.util
 import os
 from pathlib import Path
 
 import pytest
 
 BINARY = Path(os.environ.get("ZENNAV_KFGINS", "/tmp/kfgins/bin/KF-GINS"))
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "kfgins_compare.py"
 
 
 @pytest.fixture(scope="module")
-def compare_module():
+def compare_module(load_benchmark):
     if not BINARY.is_file():
         pytest.skip(f"no KF-GINS binary at {BINARY} (set ZENNAV_KFGINS)")
-    spec = importlib.util.spec_from_file_location("kfgins_compare", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("kfgins_compare")
 
 
 @pytest.mark.parametrize("outage_s, every_s", [(30.0, 120.0), (60.0, 240.0)])
