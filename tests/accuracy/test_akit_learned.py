@@ -1,8 +1,8 @@
 """Issue 14 on real data (A-KIT AUV, ../shared/data): the seed-003 learned DVL compensation against the tight EKF,
 the product's replay through benchmarks/akit_dvl.py's methods (the README's command with one seed). A model
 trained on T1-T11 (derived GNSS over the whole run, every anomaly kind injected), frozen, tested on T12/T13 with one
-DVL anomaly of each kind under water (seed 0: the bias jump comes in the last 35 s, the seed where the EKF loses
-least to the anomalies: 0.75 m against 0.57 m clean): the learned filter recovers the anomalies' cost (0.56 m; the
+DVL anomaly of each kind under water (seed 0: the bias jump comes in the last 35 s, one of the seeds where the EKF
+loses least to the anomalies: 0.75 m against 0.57 m clean): the learned filter recovers the anomalies' cost (0.56 m; the
 VBKF alone 0.59 m), no worse than the EKF on the clean DVL, which drifts under 0.5 % of the distance on both
 (0.146 / 0.063 %). Skipped without the data."""
 from __future__ import annotations
