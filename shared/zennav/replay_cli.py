@@ -280,8 +280,8 @@ def _setup_logging(verbose: int) -> None:
 @click.option("--heading-unknown", is_flag=True,
               help="Ignore the dataset's initial yaw: align at rest (gyrocompassing where the gyro allows it) or in "
               "motion from the GNSS velocity (align_in_motion: yaw = course above align_min_speed_mps, 3 m/s; the "
-              "multirotor profile: from the velocity changes against the IMU's; the auv profile: the course from 1 "
-              "m/s).")
+              "multirotor profile: from the velocity changes against the IMU's; the auv profile: from the DVL's "
+              "velocity against the GNSS's, from 1 m/s).")
 @click.option("--params", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The ins's filter parameter file (human units) [deploy/ins.yaml]: the same filter as zennav-ins.")
 @click.option("--adaptive-r/--no-adaptive-r", "adaptive_r", default=None,
@@ -291,7 +291,7 @@ def _setup_logging(verbose: int) -> None:
                    "--constraints; default: the parameter file's (off).")
 @click.option("--profile", default=None, metavar="NAME",
               help="Vehicle profile of the parameter file (car: nhc, zupt, odo; multirotor: zupt; fixed-wing: none; "
-                   "pedestrian: zupt; auv: none, yaw = course from 1 m/s; multirotor: alignment by velocity "
+                   "pedestrian: zupt; auv: none, alignment by the DVL from 1 m/s; multirotor: alignment by velocity "
                    "changes), 'dataset' for the dataset's "
                    "vehicle, or none; sets the constraints and the settings it lists. Default: the parameter file's "
                    "constraints.profile (none).")

@@ -252,8 +252,8 @@ class Alignment:
         self.dv_p = [0.0, 0.0]  # the IMU's horizontal velocity change since the last fix [m/s, N, E of the yaw-0 frame]
         self.accel_prev: tuple | None = None  # (v_N, v_E, 1-sigma) [m/s] of the last fix with a velocity
         self.accel_sums = [0.0, 0.0, 0.0, 0.0, 0.0]  # weighted a.b, a x b, |a|^2, |b|^2 and the count of pairs
-        self.dv_total = [0.0, 0.0]  # the IMU's horizontal velocity change since the start [m/s, N, E, yaw-0 frame]
-        self.dvl_last: tuple | None = None  # (t_ns, v_N, v_E, variance, dv_total N, E) of a DVL velocity not yet paired
+        # a DVL velocity since the last fix, not yet paired: (t_ns, v_N, v_E, variance, dv_p N, E then)
+        self.dvl_last: tuple | None = None
         self.dvl_seen_ns: int | None = None  # data time of the last DVL velocity while coarse [ns]
         self.dvl_sums = [0.0, 0.0, 0.0, 0.0, 0.0]  # as accel_sums, of the (DVL, fix) pairs
         self.gyrocompass_refusal = gyrocompass_refusal(config.imu_noise, float(initial.llh[0]),
@@ -425,8 +425,6 @@ class Alignment:
         seg[6] += dt
         self.dv_p[0] += dv_n
         self.dv_p[1] += dv_e
-        self.dv_total[0] += dv_n
-        self.dv_total[1] += dv_e
 
     def on_body_velocity(self, nav, t_ns: int, v_b, var: float) -> None:
         """Coarse, align_in_motion dvl: a DVL's velocity of the IMU v_b [m/s, body] of the sample at t_ns (the engine
@@ -436,7 +434,7 @@ class Alignment:
             return
         v_e = nav.state.C_nb @ np.asarray(v_b, dtype=float)
         var_e = var + (self._tilt() * float(v_e[2])) ** 2  # a tilt error turns the vertical velocity horizontal
-        self.dvl_last = (int(t_ns), float(v_e[0]), float(v_e[1]), var_e, *self.dv_total)
+        self.dvl_last = (int(t_ns), float(v_e[0]), float(v_e[1]), var_e, *self.dv_p)
         self.dvl_seen_ns = int(t_ns)
 
     def on_attitude(self, nav, t_ns: int, roll: float, pitch: float, std: float, max_age_s: float) -> bool:
@@ -597,8 +595,9 @@ class Alignment:
         add_vector_pair(self.accel_sums, a, (cur[0] - prev[0], cur[1] - prev[1]), var)
 
     def _dvl_pair(self, nav, fix: GnssFix, omega_ib_b, v, std_v) -> None:
-        """One (DVL, fix) pair for align_in_motion dvl: the last DVL velocity not yet paired (on_body_velocity), at
-        most DVL_RECENT_S old, carried to the fix with the IMU's velocity change since (the engine's yaw-0 frame) and
+        """One (DVL, fix) pair for align_in_motion dvl: the last DVL velocity since the fix before (on_body_velocity;
+        every fix takes or drops it, so dv_p's change since it is the IMU's velocity change from it to this fix), at
+        most DVL_RECENT_S old, carried to the fix with that change (the engine's yaw-0 frame) and
         to the antenna with the lever arm, against the fix's horizontal velocity v [m/s] (1-sigma std_v), summed for
         b = R(psi) a; weighted by the inverse variance of b - R a per axis: the fix's and the DVL's, the tilt error
         times g and the accelerometer noise and bias over the time between them."""
@@ -609,7 +608,7 @@ class Alignment:
         if not 0.0 <= gap <= DVL_RECENT_S:
             return
         lever_n = nav.state.C_nb @ np.cross(omega_ib_b, nav.lever_b)
-        a = (last[1] + self.dv_total[0] - last[4] + lever_n[0], last[2] + self.dv_total[1] - last[5] + lever_n[1])
+        a = (last[1] + self.dv_p[0] - last[4] + lever_n[0], last[2] + self.dv_p[1] - last[5] + lever_n[1])
         noise = self.config.imu_noise
         var = (float(max(std_v[0], std_v[1])) ** 2 + last[3] + (earth.G0 * self._tilt() * gap) ** 2
                + noise.vrw**2 * gap + (noise.accel_bias_std * gap) ** 2)
@@ -696,7 +695,6 @@ class Alignment:
                 "speed_max": float(self.speed_max), "dv_p": [float(x) for x in self.dv_p],
                 "accel_prev": None if self.accel_prev is None else list(self.accel_prev),
                 "accel_sums": [float(x) for x in self.accel_sums],
-                "dv_total": [float(x) for x in self.dv_total],
                 "dvl_last": None if self.dvl_last is None else [int(self.dvl_last[0])] + [
                     float(x) for x in self.dvl_last[1:]],
                 "dvl_seen_ns": self.dvl_seen_ns, "dvl_sums": [float(x) for x in self.dvl_sums],
@@ -718,7 +716,6 @@ class Alignment:
         prev = st.get("accel_prev")
         self.accel_prev = None if prev is None else tuple(float(x) for x in prev)
         self.accel_sums = [float(x) for x in st.get("accel_sums", (0.0,) * 5)]
-        self.dv_total = [float(x) for x in st.get("dv_total", (0.0, 0.0))]
         last = st.get("dvl_last")
         self.dvl_last = None if last is None else (int(last[0]), *(float(x) for x in last[1:]))
         seen = st.get("dvl_seen_ns")
